@@ -1,0 +1,141 @@
+"""Configuration models (pydantic) for the robot, the task and the planning core.
+
+Every parameter the paper names lives here with the paper's value as default:
+operating height 0.8 m, ε_min = 0.05, ε_max = 0.10 (squared metres, as printed in EPMC),
+γ = 2, Σ_w = r_w·I. Values the paper leaves open (δ, ξ, β, camera, nozzle) have defaults
+chosen for the Spot + Z1 set-up and are documented in docs/model.md.
+
+Models are frozen so a config can be hashed (reachability cache key) and shared safely.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Transform(_Frozen):
+    """A rigid transform given as translation (m) and roll-pitch-yaw (rad, fixed-axis XYZ)."""
+
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class BodyConfig(_Frozen):
+    """Spot body: an SE(2) pose at a fixed operating height (assumption a.1: holonomic)."""
+
+    operating_height: float = Field(0.8, gt=0.0, description="height of the arm base above ground (m); paper: 0.8")
+    arm_mount: Transform = Field(
+        default_factory=Transform,
+        description="arm base (Z1 link00) in the body frame; the body frame origin is at operating height",
+    )
+    # The body is modelled, as seen from the arm, as a vertical cylinder around the arm base:
+    # the arm may not enter it and the camera / flame may not look through it. This is what
+    # gives R_o and R_m their inner bounds (the robot cannot see or flame under itself).
+    keepout_radius: float = Field(0.35, ge=0.0, description="radius of the body keep-out cylinder (m)")
+    keepout_depth: float = Field(0.45, ge=0.0, description="cylinder extends this far below the arm base (m)")
+    max_speed: float = Field(0.8, gt=0.0, description="body translation speed limit (m/s)")
+    max_yaw_rate: float = Field(1.0, gt=0.0, description="body yaw rate limit (rad/s)")
+    max_accel: float = Field(0.8, gt=0.0, description="body acceleration limit (m/s^2)")
+
+
+class ArmConfig(_Frozen):
+    """Unitree Z1 loaded from its URDF (example-robot-data) with pinocchio."""
+
+    urdf: str | None = Field(None, description="path to z1.urdf; default: the copy shipped in example-robot-data")
+    flange_frame: str = Field("link06", description="URDF link carrying camera and nozzle")
+    locked_joints: tuple[str, ...] = Field(("jointGripper",), description="joints held at 0 (gripper)")
+    stow_joints: tuple[float, ...] = Field((0.0, 0.0, -0.005, 0.0, 0.0, 0.0), description="stowed configuration (rad)")
+    max_joint_speed: float = Field(1.5, gt=0.0, description="joint speed limit used by the bench (rad/s)")
+    min_clearance: float = Field(0.03, ge=0.0, description="arm points must stay this far above ground (m)")
+
+
+class CameraConfig(_Frozen):
+    """Pinhole camera on the end effector. Resolution u_max × v_max is fixed (assumption a.5)."""
+
+    width: int = Field(1280, gt=0, description="u_max (px)")
+    height: int = Field(720, gt=0, description="v_max (px)")
+    fx: float = Field(1000.0, gt=0.0, description="focal length (px)")
+    fy: float = Field(1000.0, gt=0.0, description="focal length (px)")
+    cx: float | None = Field(None, description="principal point (px); default: image centre")
+    cy: float | None = Field(None, description="principal point (px); default: image centre")
+    # Hand-eye transform: camera optical frame (z forward, x right, y down) in the flange frame.
+    # Default: 6 cm above the tool axis, looking along the flange x axis.
+    hand_eye: Transform = Field(
+        default_factory=lambda: Transform(xyz=(0.06, 0.0, 0.06), rpy=(-1.5707963267948966, 0.0, -1.5707963267948966))
+    )
+
+    @property
+    def principal_point(self) -> tuple[float, float]:
+        cx = self.cx if self.cx is not None else (self.width - 1) / 2.0
+        cy = self.cy if self.cy is not None else (self.height - 1) / 2.0
+        return cx, cy
+
+
+class NozzleConfig(_Frozen):
+    """Flame nozzle tool frame: its x axis is the flame direction; X_e of EPMC is its origin."""
+
+    tool: Transform = Field(default_factory=lambda: Transform(xyz=(0.16, 0.0, 0.0)))
+    max_tilt: float = Field(1.2, gt=0.0, le=1.5707963267948966, description="max angle of the flame axis from vertical (rad)")
+
+
+class RobotConfig(_Frozen):
+    body: BodyConfig = Field(default_factory=BodyConfig)
+    arm: ArmConfig = Field(default_factory=ArmConfig)
+    camera: CameraConfig = Field(default_factory=CameraConfig)
+    nozzle: NozzleConfig = Field(default_factory=NozzleConfig)
+
+    def digest(self) -> str:
+        """Stable hash of every field: the reachability cache key."""
+        blob = json.dumps(self.model_dump(mode="json"), sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+class TaskConfig(_Frozen):
+    """Task constraints and energy model (paper §IV-A, §IV-D, §IV-E)."""
+
+    delta: float = Field(0.10, gt=0.0, le=1.0, description="δ: min projected-TROI area / image area (NSV resolution)")
+    eps_min: float = Field(0.05, ge=0.0, description="ε_min: min ‖X_e − X̄_w‖² (m²) for EPMC")
+    eps_max: float = Field(0.10, gt=0.0, description="ε_max: max ‖X_e − X̄_w‖² (m²) for EPMC")
+    xi: float = Field(3.0, gt=0.0, description="ξ: flame hold time for MTC (s)")
+    gamma: float = Field(2.0, ge=0.0, description="γ: energy per unit distance d")
+    beta: float = Field(0.0, ge=0.0, description="β: weight of the orientation term in d (paper: not given)")
+    distance_form: Literal["squared", "euclidean"] = Field(
+        "euclidean", description="‖ΔX‖² as printed, or plain ‖ΔX‖ (Table I comes out of the plain form)"
+    )
+    sigma_reading: Literal["variance", "std"] = Field(
+        "variance", description="Σ_w = scale·r_w·I read as a covariance (σ = √(scale·r_w)) or as σ = scale·r_w"
+    )
+    sigma_scale: float = Field(1.0, gt=0.0, description="scale on r_w in Σ_w")
+
+    @model_validator(mode="after")
+    def _eps_order(self) -> "TaskConfig":
+        if self.eps_min > self.eps_max:
+            raise ValueError(f"eps_min ({self.eps_min}) must not exceed eps_max ({self.eps_max})")
+        return self
+
+    def sigma(self, r_w: float) -> float:
+        """Standard deviation σ of the isotropic MPOI prior N(X_w, σ²I) for a TROI of radius r_w."""
+        s = self.sigma_scale * r_w
+        return float(s**0.5) if self.sigma_reading == "variance" else float(s)
+
+
+class ReachabilityConfig(_Frozen):
+    """Resolution of the inverse-reachability maps (see docs/model.md for the measured error)."""
+
+    joint_steps: tuple[int, int, int, int] = Field(
+        (48, 48, 25, 13), description="FK samples of joints 2..5 (joint 1 by symmetry, joint 6 rolls the tool)"
+    )
+    roll_steps: int = Field(4, ge=1, description="camera roll samples (joint 6)")
+    radial_step: float = Field(0.01, gt=0.0, description="radial bin of the maps (m)")
+    radial_max: float = Field(2.0, gt=0.0, description="largest target distance from the arm axis considered (m)")
+    troi_radius_step: float = Field(0.01, gt=0.0, description="TROI radius bin of R_o (m)")
+    troi_radius_max: float = Field(0.5, gt=0.0, description="largest TROI radius R_o is built for (m)")
+    cache_dir: str | None = Field(None, description="map cache; default $XDG_CACHE_HOME/capm-field or ~/.cache/capm-field")

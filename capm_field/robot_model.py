@@ -1,0 +1,249 @@
+"""Robot model: Spot body (SE(2) at operating height) + Unitree Z1 arm (URDF, pinocchio) + camera + nozzle.
+
+The Z1 is loaded from the `z1.urdf` shipped in example-robot-data and reduced to its six arm
+joints (gripper locked). Camera (hand-eye transform) and flame nozzle are added as pinocchio
+operational frames on the flange, so FK, Jacobians and IK all come from pinocchio.
+`fk_batch` is a vectorised FK for building reachability maps; it is built from the same
+pinocchio joint placements and checked against `pinocchio.framesForwardKinematics` in tests.
+
+Frames: poses returned by `fk*` are in the arm-base frame (Z1 `world`/link00). The arm base
+sits at `body.arm_mount` in the body frame, whose origin is at the operating height.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import math
+import os
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .config import RobotConfig
+from .errors import UserError
+from .geometry import SE2, transform_matrix
+
+_URDF_IN_PACKAGE = "cmeel.prefix/share/example-robot-data/robots/z1_description/urdf/z1.urdf"
+
+
+def default_urdf_path() -> Path:
+    """Locate z1.urdf inside the installed example-robot-data distribution."""
+    try:
+        dist = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError as e:
+        raise UserError("example-robot-data is not installed: it ships the Z1 URDF (pip install example-robot-data)") from e
+    return Path(str(dist.locate_file(_URDF_IN_PACKAGE)))
+
+
+def _axis_rotation(kind: str, q: np.ndarray) -> np.ndarray:
+    """Batched rotation matrices (N, 3, 3) about a joint's axis ('RX' | 'RY' | 'RZ')."""
+    c, s = np.cos(q), np.sin(q)
+    one, zero = np.ones_like(q), np.zeros_like(q)
+    if kind.endswith("RX"):
+        rows = [[one, zero, zero], [zero, c, -s], [zero, s, c]]
+    elif kind.endswith("RY"):
+        rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
+    elif kind.endswith("RZ"):
+        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
+    else:  # pragma: no cover - the Z1 has only these
+        raise ValueError(f"unsupported joint type {kind}")
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+@dataclass(frozen=True)
+class BatchFK:
+    """Vectorised FK result in the arm-base frame."""
+
+    camera: np.ndarray  # (N, 4, 4) optical frame
+    nozzle: np.ndarray  # (N, 4, 4) tool frame, x = flame axis
+    points: np.ndarray  # (N, K, 3) points along the arm links, for keep-out / ground checks
+
+
+class RobotModel:
+    """Kinematics of the whole robot, parameterised by a RobotConfig."""
+
+    CAMERA = "camera"
+    NOZZLE = "nozzle"
+
+    def __init__(self, cfg: RobotConfig | None = None):
+        self.cfg = cfg or RobotConfig()
+        urdf = Path(os.path.expanduser(self.cfg.arm.urdf)) if self.cfg.arm.urdf else default_urdf_path()
+        if not urdf.is_file():
+            raise UserError(f"robot.arm.urdf: URDF file not found: {urdf}")
+        self.urdf_path = urdf
+        try:
+            full = pin.buildModelFromUrdf(str(urdf))
+        except Exception as e:  # pinocchio raises plain exceptions on parse errors
+            raise UserError(f"robot.arm.urdf: cannot parse {urdf}: {e}") from e
+        lock = [full.getJointId(n) for n in self.cfg.arm.locked_joints if full.existJointName(n)]
+        self.model = pin.buildReducedModel(full, lock, pin.neutral(full)) if lock else full
+        if self.model.nq != 6:
+            raise UserError(f"robot.arm.urdf: expected a 6-joint arm after locking {self.cfg.arm.locked_joints}, got nq={self.model.nq}")
+        flange = self.cfg.arm.flange_frame
+        if not self.model.existFrame(flange):
+            raise UserError(f"robot.arm.flange_frame: no frame named {flange!r} in {urdf.name}")
+        self.flange_id = self.model.getFrameId(flange, pin.FrameType.BODY)
+        fl = self.model.frames[self.flange_id]
+        for name, tf in ((self.CAMERA, self.cfg.camera.hand_eye), (self.NOZZLE, self.cfg.nozzle.tool)):
+            placement = fl.placement * pin.SE3(transform_matrix(tf))
+            self.model.addFrame(pin.Frame(name, fl.parentJoint, self.flange_id, placement, pin.FrameType.OP_FRAME))
+        self.camera_id = self.model.getFrameId(self.CAMERA)
+        self.nozzle_id = self.model.getFrameId(self.NOZZLE)
+        self.data = self.model.createData()
+        self.lower = self.model.lowerPositionLimit.copy()
+        self.upper = self.model.upperPositionLimit.copy()
+        self.joint_names = [self.model.names[i] for i in range(1, self.model.njoints)]
+        self.T_body_base = transform_matrix(self.cfg.body.arm_mount)
+        self.T_body_base[2, 3] += 0.0  # body origin is already at operating height
+
+    # ---- frames --------------------------------------------------------------------------
+    @property
+    def height(self) -> float:
+        """Height of the arm base above the ground (m)."""
+        return self.cfg.body.operating_height + float(self.T_body_base[2, 3])
+
+    def T_field_base(self, body: SE2) -> np.ndarray:
+        """Arm base in the field frame for body pose x_b."""
+        return body.matrix(self.cfg.body.operating_height) @ self.T_body_base
+
+    def arm_base_xy(self, body: SE2) -> np.ndarray:
+        return self.T_field_base(body)[:2, 3]
+
+    def body_for_arm_base(self, base_xy: np.ndarray, yaw: float) -> SE2:
+        """The body pose whose arm base stands at `base_xy` with heading `yaw`."""
+        off = self.T_body_base[:2, 3]
+        c, s = math.cos(yaw), math.sin(yaw)
+        return SE2(float(base_xy[0] - (c * off[0] - s * off[1])), float(base_xy[1] - (s * off[0] + c * off[1])), yaw)
+
+    # ---- forward kinematics ----------------------------------------------------------------
+    def fk(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """Poses (4×4, arm-base frame) of every link frame plus 'camera' and 'nozzle'."""
+        q = np.asarray(q, dtype=float)
+        pin.framesForwardKinematics(self.model, self.data, q)
+        out = {}
+        for i, f in enumerate(self.model.frames):
+            if f.type in (pin.FrameType.BODY, pin.FrameType.OP_FRAME):
+                out[f.name] = self.data.oMf[i].homogeneous.copy()
+        return out
+
+    def frame_pose(self, q: np.ndarray, frame: str) -> np.ndarray:
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        return self.data.oMf[self.model.getFrameId(frame)].homogeneous.copy()
+
+    @cached_property
+    def _chain(self) -> list[tuple[str, np.ndarray]]:
+        return [(self.model.joints[j].shortname(), self.model.jointPlacements[j].homogeneous) for j in range(1, self.model.njoints)]
+
+    def fk_batch(self, Q: np.ndarray) -> BatchFK:
+        """Vectorised FK for joint configurations Q (N, 6): camera, nozzle and link points."""
+        Q = np.asarray(Q, dtype=float)
+        n = len(Q)
+        T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+        pts = []
+        prev = np.zeros((n, 3))
+        for j, (kind, placement) in enumerate(self._chain):
+            T = T @ placement
+            R = np.eye(4)[None].repeat(n, 0)
+            R[:, :3, :3] = _axis_rotation(kind, Q[:, j])
+            T = T @ R
+            p = T[:, :3, 3]
+            for a in (0.5,):  # midpoint of each link, then the joint itself
+                pts.append(prev + a * (p - prev))
+            pts.append(p)
+            prev = p
+        fl = self.model.frames[self.flange_id].placement.homogeneous
+        Tf = T @ fl
+        cam = Tf @ transform_matrix(self.cfg.camera.hand_eye)
+        noz = Tf @ transform_matrix(self.cfg.nozzle.tool)
+        for P in (Tf[:, :3, 3], cam[:, :3, 3], noz[:, :3, 3]):
+            pts.append(prev + 0.5 * (P - prev))
+            pts.append(P)
+        return BatchFK(camera=cam, nozzle=noz, points=np.stack(pts, axis=1))
+
+    # ---- body keep-out and ground ----------------------------------------------------------
+    def in_keepout(self, p_base: np.ndarray) -> np.ndarray:
+        """Points (…, 3) in the arm-base frame inside the body keep-out cylinder or below ground clearance."""
+        b = self.cfg.body
+        r = np.hypot(p_base[..., 0], p_base[..., 1])
+        body = (r < b.keepout_radius) & (p_base[..., 2] < 0.0) & (p_base[..., 2] > -b.keepout_depth)
+        ground = p_base[..., 2] < -self.height + self.cfg.arm.min_clearance
+        return body | ground
+
+    def segment_blocked(self, a: np.ndarray, b: np.ndarray, samples: int = 24) -> np.ndarray:
+        """Whether segments a→b (…, 3) (arm-base frame) pass through the body keep-out cylinder."""
+        t = np.linspace(0.0, 1.0, samples)[:, None]
+        a = np.asarray(a, dtype=float)[..., None, :]
+        b = np.asarray(b, dtype=float)[..., None, :]
+        p = a + t * (b - a)
+        bc = self.cfg.body
+        r = np.hypot(p[..., 0], p[..., 1])
+        inside = (r < bc.keepout_radius) & (p[..., 2] < 0.0) & (p[..., 2] > -bc.keepout_depth)
+        return inside.any(axis=-1)
+
+    def config_valid(self, q: np.ndarray) -> bool:
+        """Joint limits hold and no arm point enters the keep-out volume or the ground."""
+        q = np.asarray(q, dtype=float)
+        if np.any(q < self.lower - 1e-9) or np.any(q > self.upper + 1e-9):
+            return False
+        return not bool(self.in_keepout(self.fk_batch(q[None]).points[0]).any())
+
+    # ---- inverse kinematics ----------------------------------------------------------------
+    def ik_axis_point(
+        self,
+        frame: str,
+        target_base: np.ndarray,
+        distance: float,
+        q_seed: np.ndarray,
+        iters: int = 80,
+        tol: float = 1e-4,
+        damping: float = 1e-4,
+    ) -> tuple[np.ndarray, bool, float]:
+        """IK: put the point at `distance` along `frame`'s pointing axis onto `target_base`.
+
+        The pointing axis is +x for the nozzle (flame direction) and +z for the camera (optical
+        axis). Roll about the axis stays free (redundancy resolved by damped least squares).
+        Joint limits are enforced by clamping each step. Returns (q, converged, residual m).
+        """
+        fid = self.model.getFrameId(frame)
+        col = 0 if frame == self.NOZZLE else 2
+        q = np.clip(np.asarray(q_seed, dtype=float).copy(), self.lower, self.upper)
+        target = np.asarray(target_base, dtype=float)
+        err = np.inf
+        for _ in range(iters):
+            pin.framesForwardKinematics(self.model, self.data, q)
+            M = self.data.oMf[fid]
+            a = M.rotation[:, col]
+            e = M.translation + distance * a - target
+            err = float(np.linalg.norm(e))
+            if err < tol:
+                return q, True, err
+            J = pin.computeFrameJacobian(self.model, self.data, q, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            Jv, Jw = J[:3], J[3:]
+            # d(p + s·a)/dq = Jv + s·(ω × a) = Jv − s·[a]× Jw
+            ax = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            Jt = Jv - distance * ax @ Jw
+            dq = Jt.T @ np.linalg.solve(Jt @ Jt.T + damping * np.eye(3), -e)
+            q = np.clip(q + dq, self.lower, self.upper)
+        return q, err < tol, err
+
+    def ik_pose(self, frame: str, T_target_base: np.ndarray, q_seed: np.ndarray, iters: int = 100, tol: float = 1e-4) -> tuple[np.ndarray, bool, float]:
+        """Full 6-D IK of `frame` to a pose in the arm-base frame (pinocchio log6 error, clamped DLS)."""
+        fid = self.model.getFrameId(frame)
+        target = pin.SE3(np.asarray(T_target_base, dtype=float))
+        q = np.clip(np.asarray(q_seed, dtype=float).copy(), self.lower, self.upper)
+        err = np.inf
+        for _ in range(iters):
+            pin.framesForwardKinematics(self.model, self.data, q)
+            dM = target.actInv(self.data.oMf[fid])
+            e = pin.log6(dM).vector
+            err = float(np.linalg.norm(e))
+            if err < tol:
+                return q, True, err
+            J = pin.computeFrameJacobian(self.model, self.data, q, fid, pin.ReferenceFrame.LOCAL)
+            J = pin.Jlog6(dM) @ J
+            dq = -J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), e)
+            q = np.clip(q + dq, self.lower, self.upper)
+        return q, err < tol, err
