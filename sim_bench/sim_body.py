@@ -13,12 +13,11 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass
-
 import numpy as np
 
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2, wrap_angle
+from drivers.body_server import MoveStatus
 from drivers.interfaces import Body, BodyState, DriverTimeout, EStopActive, MoveResult
 
 _SUBSTEP_NS = 5_000_000  # integration step (5 ms): small against the 0.8 m/s² ramps
@@ -43,20 +42,6 @@ class SimClock:
             time.sleep(max(0.0, dt))
         else:
             self._t += int(round(dt * 1e9))
-
-
-@dataclass(frozen=True)
-class MoveStatus:
-    """Outcome of one move: status is 'running' | 'succeeded' | 'failed' | 'stopped' | 'estop' | 'timeout'."""
-
-    cmd_id: int
-    status: str
-    reason: str | None = None
-    final: SE2 | None = None
-
-    @property
-    def done(self) -> bool:
-        return self.status != "running"
 
 
 class SimBody:

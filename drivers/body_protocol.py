@@ -1,0 +1,198 @@
+"""Zenoh body protocol, shared by the client (`ZenohBody`) and the robot side (`BodyServer`).
+
+Key expressions, the CBOR codec with validation, and the zenoh session config. The spec for
+foreign clients is docs/protocols/body-zenoh.md; keep the two in step (VERSION bumps on any
+incompatible change).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import cbor2
+
+VERSION = 1
+MAX_PAYLOAD = 4096  # bytes; anything larger is malformed (bounds decoding work on hostile input)
+
+_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+# Query keys (relative to the body prefix) and the request kind each one carries.
+QUERIES = {
+    "cmd/move": "move",
+    "cmd/stop": "stop",
+    "cmd/power": "power",
+    "lease/acquire": "lease_acquire",
+    "lease/release": "lease_release",
+    "estop/checkin": "checkin",
+}
+MOVE_STATUSES = ("running", "succeeded", "failed", "stopped", "estop", "timeout")
+
+
+class ProtocolError(ValueError):
+    """A payload or key that the protocol does not allow. `tag` is what the counters count."""
+
+    def __init__(self, tag: str, detail: str) -> None:
+        super().__init__(f"{tag}: {detail}")
+        self.tag, self.detail = tag, detail
+
+
+def check_id(kind: str, value: str) -> str:
+    if not isinstance(value, str) or not _ID_RE.match(value):
+        raise ValueError(f"{kind} must match [A-Za-z0-9_-]{{1,64}}, got {value!r}")
+    return value
+
+
+class Keys:
+    """All key expressions of one robot's body: `capm/<robot_id>/body/...`."""
+
+    def __init__(self, robot_id: str) -> None:
+        self.robot_id = check_id("robot_id", robot_id)
+        self.prefix = p = f"capm/{robot_id}/body"
+        self.cmd_move, self.cmd_stop, self.cmd_power = f"{p}/cmd/move", f"{p}/cmd/stop", f"{p}/cmd/power"
+        self.lease_acquire, self.lease_release = f"{p}/lease/acquire", f"{p}/lease/release"
+        self.estop_checkin = f"{p}/estop/checkin"
+        self.state, self.feedback, self.alive = f"{p}/state", f"{p}/feedback", f"{p}/alive"
+        self.all, self.clients = f"{p}/**", f"{p}/client/*"
+
+    def client(self, client_id: str) -> str:
+        return f"{self.prefix}/client/{check_id('client_id', client_id)}"
+
+    def relative(self, key: str) -> str | None:
+        """`key` relative to the prefix, or None if it is not under it."""
+        p = self.prefix + "/"
+        return key[len(p):] if key.startswith(p) else None
+
+
+# ---- codec -------------------------------------------------------------------------------------
+# Field specs: name -> (type, required). Types: str, int, float, bool, id, pose, map, str?, ...
+_POSE = {"x": ("float", True), "y": ("float", True), "yaw": ("float", True)}
+_CMD = {"id": ("int", True), "status": ("status", True), "reason": ("str?", False)}
+SCHEMAS: dict[str, dict[str, tuple[str, bool]]] = {
+    # requests
+    "move": {"client": ("id", True), "lease": ("str", True), "goal": ("pose", True), "timeout_ns": ("int", True)},
+    "stop": {"client": ("id", True)},
+    "power": {"client": ("id", True), "lease": ("str", True), "on": ("bool", True)},
+    "lease_acquire": {"client": ("id", True), "lease": ("str?", False)},
+    "lease_release": {"client": ("id", True), "lease": ("str", True)},
+    "checkin": {"client": ("id", True), "seq": ("int", True), "engage": ("bool", False)},
+    # replies
+    "ack": {"ok": ("bool", True), "cmd_id": ("int", False), "lease": ("str", False), "ttl_ns": ("int", False),
+            "timeout_ns": ("int", False), "estop": ("bool", False)},
+    "error": {"ok": ("bool", True), "error": ("str", True), "detail": ("str", True)},
+    # publications
+    "state": {"t_ns": ("int", True), "seq": ("int", True), "pose": ("pose", True), "moving": ("bool", True),
+              "powered": ("bool", True), "estop": ("bool", True), "estop_reason": ("str?", False),
+              "odometry_m": ("float", True), "moves": ("int", True), "fault": ("str?", False),
+              "cmd": ("cmd?", False), "lease_holder": ("str?", False)},
+    "feedback": {"t_ns": ("int", True), "cmd_id": ("int", True), "status": ("status", True),
+                 "reason": ("str?", False), "pose": ("pose", True)},
+}
+
+
+def _check(value: Any, typ: str, name: str) -> None:
+    if typ.endswith("?"):
+        if value is None:
+            return
+        typ = typ[:-1]
+    ok = {
+        "str": lambda v: isinstance(v, str) and len(v) <= 256,
+        "id": lambda v: isinstance(v, str) and bool(_ID_RE.match(v)),
+        "int": lambda v: isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**64,
+        "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
+        "bool": lambda v: isinstance(v, bool),
+        "status": lambda v: v in MOVE_STATUSES,
+        "pose": lambda v: isinstance(v, dict),
+        "cmd": lambda v: isinstance(v, dict),
+    }[typ](value)
+    if not ok:
+        raise ProtocolError("malformed", f"field {name!r} must be {typ}, got {value!r:.60}")
+    if typ == "pose":
+        _check_map(value, _POSE, name + ".")
+    elif typ == "cmd":
+        _check_map(value, _CMD, name + ".")
+
+
+def _check_map(msg: dict, spec: dict[str, tuple[str, bool]], where: str = "") -> None:
+    for name, (typ, required) in spec.items():
+        if name not in msg:
+            if required:
+                raise ProtocolError("malformed", f"missing field {where + name!r}")
+            continue
+        _check(msg[name], typ, where + name)
+
+
+def encode(kind: str, msg: Mapping[str, Any]) -> bytes:
+    """CBOR map with the version field first. Validates outgoing messages too (catches our bugs)."""
+    out = {"v": VERSION, **msg}
+    _check_map(out, SCHEMAS[kind])
+    return cbor2.dumps(out)
+
+
+def decode(kind: str, raw: bytes | None) -> dict[str, Any]:
+    """Decode and validate one message of `kind`; raises ProtocolError('malformed'|'bad_version')."""
+    if raw is None or len(raw) == 0:
+        raise ProtocolError("malformed", "empty payload")
+    if len(raw) > MAX_PAYLOAD:
+        raise ProtocolError("malformed", f"payload of {len(raw)} bytes exceeds {MAX_PAYLOAD}")
+    try:
+        msg = cbor2.loads(raw)
+    except Exception as e:  # noqa: BLE001 - any decoder failure is a malformed payload
+        raise ProtocolError("malformed", f"not CBOR ({type(e).__name__})") from None
+    if not isinstance(msg, dict):
+        raise ProtocolError("malformed", "top level must be a CBOR map")
+    v = msg.get("v")
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise ProtocolError("malformed", "missing integer field 'v' (protocol version)")
+    if v != VERSION:
+        raise ProtocolError("bad_version", f"protocol version {v} not supported (this side speaks {VERSION})")
+    _check_map(msg, SCHEMAS[kind])
+    return msg
+
+
+def pose_map(x: float, y: float, yaw: float) -> dict[str, float]:
+    return {"x": float(x), "y": float(y), "yaw": float(yaw)}
+
+
+# ---- zenoh session config ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class LinkConfig:
+    """Where and how a zenoh session connects. Explicit endpoints only: multicast and gossip
+    scouting are off unless asked for, and nothing listens unless `listen` says so (the zenoh
+    default peer listens on every interface).
+
+    `base_json5` is a whole zenoh config to start from (TLS, user/password, ...); the fields
+    here are applied on top of it, then `overrides` (zenoh config path -> value, e.g.
+    {"transport/link/tls/root_ca_certificate": "/etc/ca.pem"}) last.
+    """
+
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    mode: str = "peer"
+    lease_ms: int = 1000  # transport.link.tx.lease: a frozen peer is declared dead after this
+    keep_alive: int = 4  # keep-alive messages per lease period
+    multicast: bool = False
+    gossip: bool = False
+    base_json5: str | None = None
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+
+    def zenoh_config(self):  # -> zenoh.Config (imported lazily: the codec needs no zenoh)
+        import zenoh
+
+        cfg = zenoh.Config.from_json5(self.base_json5) if self.base_json5 else zenoh.Config()
+        items: dict[str, Any] = {
+            "mode": self.mode,
+            "connect/endpoints": list(self.connect),
+            "listen/endpoints": list(self.listen),
+            "scouting/multicast/enabled": self.multicast,
+            "scouting/gossip/enabled": self.gossip,
+            "transport/link/tx/lease": int(self.lease_ms),
+            "transport/link/tx/keep_alive": int(self.keep_alive),
+        }
+        items.update(self.overrides)
+        for path, value in items.items():
+            cfg.insert_json5(path, json.dumps(value))
+        return cfg

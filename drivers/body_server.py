@@ -1,0 +1,321 @@
+"""Robot side of the zenoh body protocol, shared by the bench server and the Spot bridge.
+
+`BodyServer` owns everything protocol-shaped (keys, codec, lease, E-stop keep-alive, state
+stream, counters); a `BodyBackend` owns the body (the simulator, or Spot through its SDK).
+One loop thread at the state rate polls the backend, enforces the keep-alive and the lease TTL
+and publishes state; queries are answered on zenoh's threads under one lock and never wait
+on the body (a move is acknowledged at once, its end reported on `feedback` and in `state`).
+"""
+
+from __future__ import annotations
+
+import abc
+import collections
+import logging
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field
+
+from capm_field.geometry import SE2
+from drivers.body_protocol import QUERIES, Keys, LinkConfig, ProtocolError, decode, encode, pose_map
+from drivers.interfaces import EStopActive
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MoveStatus:
+    """Outcome of one move: status is 'running' | 'succeeded' | 'failed' | 'stopped' | 'estop' | 'timeout'."""
+
+    cmd_id: int
+    status: str
+    reason: str | None = None
+    final: SE2 | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.status != "running"
+
+
+@dataclass(frozen=True)
+class BackendState:
+    pose: SE2
+    moving: bool
+    powered: bool
+    estop: bool
+    estop_reason: str | None
+    odometry_m: float
+    moves: int
+    fault: str | None = None
+    move: MoveStatus | None = None  # the latest move, by the server's cmd_id
+
+
+class BodyBackend(abc.ABC):
+    """What the server needs from a body. Methods are called under the server lock and must
+    return quickly (a backend talking to hardware keeps its own threads)."""
+
+    @abc.abstractmethod
+    def poll(self) -> BackendState: ...
+
+    @abc.abstractmethod
+    def start_move(self, cmd_id: int, goal: SE2, timeout_s: float) -> None:
+        """Start a move; raise EStopActive if E-stopped. Other failures end the move (status)."""
+
+    @abc.abstractmethod
+    def stop(self, reason: str) -> None: ...
+
+    @abc.abstractmethod
+    def set_power(self, on: bool) -> None: ...
+
+    @abc.abstractmethod
+    def keepalive(self, ok: bool, reason: str = "estop_keepalive_timeout") -> None:
+        """E-stop keep-alive: False when check-ins stopped (stop + engage, `reason`), True when they resume."""
+
+    def responsive(self) -> bool:
+        """False while the backend simulates a frozen robot side (no answers, no state)."""
+        return True
+
+    def close(self) -> None:  # noqa: B027 - default: nothing to release
+        pass
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    robot_id: str = "spot"
+    link: LinkConfig = field(default_factory=lambda: LinkConfig(listen=("tcp/127.0.0.1:7447",)))
+    state_rate_hz: float = 100.0  # ≥ 50 Hz required; 100 Hz leaves room for scheduling jitter
+    estop_timeout_s: float = 1.0  # no check-in for this long → body stopped, E-stop engaged
+    lease_ttl_s: float = 2.0
+    max_move_timeout_s: float = 600.0
+
+
+class BodyServer:
+    """Serve one body on zenoh. `start()` then `close()` (idempotent); also a context manager."""
+
+    def __init__(self, backend: BodyBackend, config: ServerConfig) -> None:
+        self.backend, self.config = backend, config
+        self.keys = Keys(config.robot_id)
+        self._stats: collections.Counter[str] = collections.Counter()
+        self._lock = threading.RLock()
+        self._session = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._next_cmd = 1
+        self._lease: tuple[str, str, int] | None = None  # (client, token, expires monotonic ns)
+        self._last_checkin_ns: int | None = None
+        self._keepalive_ok: bool | None = None
+        self._last_move: tuple[int, str] | None = None
+        self._seq = 0
+
+    # ---- lifecycle ---------------------------------------------------------------------------
+    def start(self) -> "BodyServer":
+        import zenoh
+
+        self.backend.keepalive(False, "no_estop_checkin")  # E-stopped until a client checks in (as Spot without an endpoint)
+        self._keepalive_ok = False
+        s = self._session = zenoh.open(self.config.link.zenoh_config())
+        try:
+            self._state_pub = s.declare_publisher(
+                self.keys.state, congestion_control=zenoh.CongestionControl.DROP, express=True
+            )
+            self._feedback_pub = s.declare_publisher(
+                self.keys.feedback, congestion_control=zenoh.CongestionControl.BLOCK, express=True
+            )
+            # One queryable for the whole prefix so that unknown keys are seen, refused and counted.
+            self._queryable = s.declare_queryable(self.keys.all, self._on_query)
+            self._puts = s.declare_subscriber(self.keys.all, self._on_put, allowed_origin=zenoh.Locality.REMOTE)
+            self._clients = s.liveliness().declare_subscriber(self.keys.clients, self._on_client, history=True)
+            self._thread = threading.Thread(target=self._loop, name=f"body-server-{self.config.robot_id}", daemon=True)
+            self._thread.start()
+            self._token = s.liveliness().declare_token(self.keys.alive)  # last: alive means ready
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        s, self._session = self._session, None
+        if s is not None:
+            try:
+                s.close()
+            except Exception:  # noqa: BLE001 - closing must not raise
+                pass
+        try:
+            self.backend.stop("server_closed")
+        except Exception:  # noqa: BLE001
+            pass
+
+    def __enter__(self) -> "BodyServer":
+        return self.start() if self._session is None else self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def stats(self) -> dict[str, int]:
+        """Counters: queries by kind, refusals by reason (malformed, bad_version, foreign_key,
+        no_lease, lease_refused, estop), estop_timeouts, lease_expired, state_published."""
+        with self._lock:
+            return dict(self._stats)
+
+    @property
+    def lease_holder(self) -> str | None:
+        return self._lease[0] if self._lease else None
+
+    # ---- the loop ----------------------------------------------------------------------------
+    def _loop(self) -> None:
+        period_ns = int(1e9 / self.config.state_rate_hz)
+        next_ns = time.monotonic_ns()
+        while not self._stop.is_set():
+            try:
+                if self.backend.responsive():
+                    self._tick()
+            except Exception:  # noqa: BLE001 - the loop must survive a bad tick; it is logged
+                log.exception("body server tick failed")
+            next_ns += period_ns
+            now = time.monotonic_ns()
+            if next_ns < now - period_ns:  # fell behind (CPU starved): do not burst to catch up
+                next_ns = now
+            self._stop.wait(max(0.0, (next_ns - now) * 1e-9))
+
+    def _tick(self) -> None:
+        now = time.monotonic_ns()
+        with self._lock:
+            if self._keepalive_ok and (
+                self._last_checkin_ns is None or now - self._last_checkin_ns > self.config.estop_timeout_s * 1e9
+            ):
+                self._keepalive_ok = False
+                self._stats["estop_timeouts"] += 1
+                self.backend.keepalive(False)
+            if self._lease is not None and now > self._lease[2]:
+                self._stats["lease_expired"] += 1
+                self._drop_lease("lease_expired")
+            st = self.backend.poll()
+            self._seq += 1
+            holder = self.lease_holder
+        m = st.move
+        if m is not None and (m.cmd_id, m.status) != self._last_move:
+            self._last_move = (m.cmd_id, m.status)
+            if m.done:
+                p = m.final or st.pose
+                fb = {"t_ns": now, "cmd_id": m.cmd_id, "status": m.status, "reason": m.reason,
+                      "pose": pose_map(*p.as_tuple())}
+                self._feedback_pub.put(encode("feedback", fb))
+        msg = {
+            "t_ns": now, "seq": self._seq, "pose": pose_map(*st.pose.as_tuple()), "moving": st.moving,
+            "powered": st.powered, "estop": st.estop, "estop_reason": st.estop_reason,
+            "odometry_m": float(st.odometry_m), "moves": st.moves, "fault": st.fault,
+            "cmd": None if m is None else {"id": m.cmd_id, "status": m.status, "reason": m.reason},
+            "lease_holder": holder,
+        }
+        self._state_pub.put(encode("state", msg))
+        self._stats["state_published"] += 1
+
+    def _drop_lease(self, reason: str) -> None:
+        # Losing the commander (lease expired, released or its session gone) stops the body.
+        self._lease = None
+        self.backend.stop(reason)
+
+    # ---- queries -----------------------------------------------------------------------------
+    def _on_query(self, query) -> None:
+        if not self.backend.responsive():
+            return  # frozen: no answer, as a hung robot side (the client's get times out)
+        key = str(query.key_expr)
+        rel = self.keys.relative(key)
+        kind = QUERIES.get(rel or "")
+        try:
+            if kind is None:  # unknown key, or a wildcard query trying to hit several commands
+                raise ProtocolError("foreign_key", f"no command at {key!r}")
+            raw = query.payload.to_bytes() if query.payload is not None else None
+            msg = decode(kind, raw)
+            with self._lock:
+                self._stats[f"q_{kind}"] += 1
+                reply = getattr(self, f"_do_{kind}")(msg)
+            query.reply(key, encode("ack", {"ok": True, **reply}))
+        except ProtocolError as e:
+            with self._lock:
+                self._stats[e.tag] += 1
+            query.reply_err(encode("error", {"ok": False, "error": e.tag, "detail": e.detail}))
+        except Exception as e:  # noqa: BLE001 - a backend failure must still answer the client
+            log.exception("query %s failed", key)
+            with self._lock:
+                self._stats["internal"] += 1
+            query.reply_err(encode("error", {"ok": False, "error": "internal", "detail": str(e)[:200]}))
+
+    def _require_lease(self, msg: dict) -> None:
+        lease = self._lease
+        if lease is None or lease[0] != msg["client"] or lease[1] != msg["lease"]:
+            who = f"held by {lease[0]!r}" if lease else "not held"
+            raise ProtocolError("no_lease", f"client {msg['client']!r} does not hold the body lease ({who})")
+
+    def _do_move(self, msg: dict) -> dict:
+        self._require_lease(msg)
+        g = msg["goal"]
+        timeout_s = min(msg["timeout_ns"] * 1e-9, self.config.max_move_timeout_s)
+        if timeout_s <= 0:
+            raise ProtocolError("malformed", "timeout_ns must be > 0")
+        cmd_id = self._next_cmd
+        try:
+            self.backend.start_move(cmd_id, SE2(float(g["x"]), float(g["y"]), float(g["yaw"])), timeout_s)
+        except EStopActive as e:
+            raise ProtocolError("estop", str(e)) from None
+        self._next_cmd += 1
+        return {"cmd_id": cmd_id}
+
+    def _do_stop(self, msg: dict) -> dict:
+        # Stopping is always allowed, lease or not: it can only make the body safer.
+        self.backend.stop("stop_requested")
+        return {}
+
+    def _do_power(self, msg: dict) -> dict:
+        self._require_lease(msg)
+        self.backend.set_power(bool(msg["on"]))
+        return {}
+
+    def _do_lease_acquire(self, msg: dict) -> dict:
+        now, ttl = time.monotonic_ns(), int(self.config.lease_ttl_s * 1e9)
+        lease = self._lease
+        if lease is not None and lease[0] != msg["client"]:
+            raise ProtocolError(
+                "lease_refused", f"body lease held by {lease[0]!r} (expires in {(lease[2] - now) * 1e-9:.1f} s unless refreshed)"
+            )
+        token = lease[1] if lease is not None else secrets.token_hex(8)
+        self._lease = (msg["client"], token, now + ttl)
+        return {"lease": token, "ttl_ns": ttl}
+
+    def _do_lease_release(self, msg: dict) -> dict:
+        self._require_lease(msg)
+        self._drop_lease("lease_released")
+        return {}
+
+    def _do_checkin(self, msg: dict) -> dict:
+        self._last_checkin_ns = time.monotonic_ns()
+        if msg.get("engage"):
+            self.backend.keepalive(False, "estop_engaged_by_client")  # a client may assert the E-stop (Spot's settle_then_cut)
+            self._keepalive_ok = False
+            self._last_checkin_ns = None
+        elif not self._keepalive_ok:
+            self._keepalive_ok = True
+            self.backend.keepalive(True)
+        st = self.backend.poll()
+        return {"timeout_ns": int(self.config.estop_timeout_s * 1e9), "estop": st.estop}
+
+    # ---- puts and client liveliness ----------------------------------------------------------
+    def _on_put(self, sample) -> None:
+        with self._lock:
+            self._stats["foreign_put"] += 1  # nobody but this server publishes under the prefix
+
+    def _on_client(self, sample) -> None:
+        import zenoh
+
+        if sample.kind != zenoh.SampleKind.DELETE:
+            return
+        client = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if self._lease is not None and self._lease[0] == client:
+                self._stats["commander_lost"] += 1
+                self._drop_lease("commander_lost")

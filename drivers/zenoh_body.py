@@ -1,0 +1,351 @@
+"""`ZenohBody`: the `Body` driver over the zenoh body protocol (docs/protocols/body-zenoh.md).
+
+Same adapter on the robot (against `capm-field spot-bridge`) and on the wire-level bench
+(against `sim_bench.zenoh_body_server`). Background work that must not depend on the caller
+(E-stop check-ins, lease refresh) runs on one thread; state, feedback and the robot's
+liveliness token arrive on zenoh callbacks. Link loss is latched: once the robot side is
+gone (liveliness DELETE) or silent (no state for `state_stale_s`), every call raises
+`LinkLost`, check-ins stop (so a robot side that comes back stops on its own keep-alive
+timeout), and a new `ZenohBody` is needed to reconnect.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import os
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field, replace
+
+from capm_field.geometry import SE2
+from drivers.body_protocol import Keys, LinkConfig, ProtocolError, decode, encode, pose_map
+from drivers.interfaces import (
+    Body,
+    BodyState,
+    DriverError,
+    DriverTimeout,
+    EStopActive,
+    LeaseRefused,
+    LinkLost,
+    MoveResult,
+)
+
+_TERMINAL = ("succeeded", "failed", "stopped", "estop", "timeout")
+
+
+@dataclass(frozen=True)
+class ZenohBodyConfig:
+    robot_id: str = "spot"
+    link: LinkConfig = field(default_factory=lambda: LinkConfig(connect=("tcp/127.0.0.1:7447",)))
+    connect_timeout_s: float = 5.0  # robot's liveliness token + first state must arrive by then
+    query_timeout_s: float = 0.5  # per command query: the robot acknowledges at once
+    state_stale_s: float | None = None  # no state this long → LinkLost; default: half the transport lease
+    client_id: str | None = None  # default: unique per instance
+
+    @staticmethod
+    def loopback(port: int, robot_id: str = "spot", lease_ms: int = 1000, **kw) -> "ZenohBodyConfig":
+        return ZenohBodyConfig(robot_id=robot_id, link=LinkConfig(connect=(f"tcp/127.0.0.1:{port}",), lease_ms=lease_ms), **kw)
+
+
+class ZenohBody(Body):
+    def __init__(self, config: ZenohBodyConfig | None = None) -> None:
+        import zenoh
+
+        cfg = config or ZenohBodyConfig()
+        if cfg.client_id is None:
+            cfg = replace(cfg, client_id=f"c{os.getpid()}-{secrets.token_hex(4)}")
+        self.config = cfg
+        self.keys = Keys(cfg.robot_id)
+        self.client_id: str = cfg.client_id  # type: ignore[assignment]
+        self._stale_ns = int((cfg.state_stale_s if cfg.state_stale_s is not None else cfg.link.lease_ms / 2000) * 1e9)
+        self._cond = threading.Condition()
+        self._state: dict | None = None
+        self._state_rx_ns = 0
+        self._alive = False
+        self._lost: str | None = None
+        self._closed = False
+        self._results: collections.OrderedDict[int, dict] = collections.OrderedDict()
+        self._lease: str | None = None
+        self._lease_ttl_ns = 0
+        self._lease_refreshed_ns = 0
+        self._checkin_period_s = 0.25
+        self._seq = 0
+        self.stats: collections.Counter[str] = collections.Counter()
+        self._stop_bg = threading.Event()
+        self._bg: threading.Thread | None = None
+        self._session = zenoh.open(cfg.link.zenoh_config())
+        try:
+            s = self._session
+            self._token = s.liveliness().declare_token(self.keys.client(self.client_id))
+            self._subs = [
+                s.declare_subscriber(self.keys.state, self._on_state),
+                s.declare_subscriber(self.keys.feedback, self._on_feedback),
+                s.liveliness().declare_subscriber(self.keys.alive, self._on_alive, history=True),
+            ]
+            self._wait_connected(cfg.connect_timeout_s)
+            self._checkin(time.monotonic() + cfg.connect_timeout_s)  # releases the robot's E-stop
+            self._wait_connected(cfg.connect_timeout_s, after_ns=time.monotonic_ns())  # a state that shows it
+            self._bg = threading.Thread(target=self._background, name=f"zenoh-body-{self.client_id}", daemon=True)
+            self._bg.start()
+        except BaseException:
+            self.close()
+            raise
+
+    # ---- Body --------------------------------------------------------------------------------
+    def move_to(self, goal: SE2, timeout: float) -> MoveResult:
+        if not all(math.isfinite(v) for v in goal.as_tuple()):
+            raise ValueError(f"goal must be finite, got {goal}")
+        t0 = time.monotonic()
+        deadline = t0 + timeout
+        self._ensure_lease(deadline)
+        odo0 = self._state["odometry_m"] if self._state else 0.0
+        msg = {"client": self.client_id, "lease": self._lease or "", "goal": pose_map(*goal.as_tuple()),
+               "timeout_ns": max(1, int(timeout * 1e9))}
+        try:
+            ack = self._query(self.keys.cmd_move, "move", msg, deadline)
+        except LeaseRefused:
+            self._lease = None  # the robot forgot us (expired, or its side restarted)
+            raise
+        cmd_id = ack.get("cmd_id")
+        if not isinstance(cmd_id, int):
+            raise DriverError(f"robot acknowledged the move without a cmd_id: {ack}")
+        with self._cond:
+            while True:
+                res = self._results.get(cmd_id)
+                if res is None:
+                    cur = (self._state or {}).get("cmd") or {}
+                    if isinstance(cur.get("id"), int) and cur["id"] > cmd_id:
+                        res = {"status": "stopped", "reason": "preempted", "pose": self._state["pose"]}
+                if res is not None:
+                    break
+                err = self._link_error()
+                if err:
+                    self._stop_nowait()
+                    raise LinkLost(f"link to {self.keys.prefix} lost during move {cmd_id}: {err}")
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                self._cond.wait(min(remaining, 0.02))
+        if res is None:
+            self.stop()
+            raise DriverTimeout(f"move {cmd_id} to {goal} not done within {timeout} s (body stopped)")
+        p = res["pose"]
+        final = SE2(p["x"], p["y"], p["yaw"])
+        extra = {"cmd_id": cmd_id, "duration_s": time.monotonic() - t0,
+                 "distance_m": ((self._state or {}).get("odometry_m", odo0)) - odo0}
+        status = res["status"]
+        if status == "estop":
+            raise EStopActive(f"E-stop engaged during move {cmd_id} ({res.get('reason')})")
+        if status == "timeout":
+            raise DriverTimeout(f"move {cmd_id} hit its deadline on the robot side (body stopped)")
+        return MoveResult(ok=status == "succeeded", reason=res.get("reason"), final=final, extra=extra)
+
+    def stop(self) -> None:
+        """Best effort, never raises: the robot side also stops on its own when we go silent."""
+        try:
+            if self._session is not None and not self._closed:
+                self._query(self.keys.cmd_stop, "stop", {"client": self.client_id},
+                            time.monotonic() + self.config.query_timeout_s, check_link=False)
+        except Exception:  # noqa: BLE001 - stop() does not raise (interface contract)
+            self.stats["stop_failed"] += 1
+
+    def state(self) -> BodyState:
+        with self._cond:
+            m, rx, err = self._state, self._state_rx_ns, self._link_error()
+        if m is None:
+            raise LinkLost(f"no state from {self.keys.prefix}")
+        p = m["pose"]
+        return BodyState(
+            pose=SE2(p["x"], p["y"], p["yaw"]), moving=m["moving"], powered=m["powered"], estop=m["estop"],
+            stamp_ns=rx,  # local monotonic receive time: the robot's clock is another machine's
+            odometry_m=m["odometry_m"], fault=f"link_lost: {err}" if err else m.get("fault"),
+        )
+
+    # ---- extras (not in the Body interface) --------------------------------------------------
+    def acquire_lease(self, timeout: float = 1.0) -> None:
+        self._ensure_lease(time.monotonic() + timeout)
+
+    def release_lease(self, timeout: float = 0.5) -> None:
+        lease, self._lease = self._lease, None
+        if lease:
+            self._query(self.keys.lease_release, "lease_release", {"client": self.client_id, "lease": lease},
+                        time.monotonic() + timeout, check_link=False)
+
+    def set_power(self, on: bool, timeout: float = 1.0) -> None:
+        deadline = time.monotonic() + timeout
+        self._ensure_lease(deadline)
+        self._query(self.keys.cmd_power, "power", {"client": self.client_id, "lease": self._lease or "", "on": on}, deadline)
+
+    def engage_estop(self, timeout: float = 0.5) -> None:
+        """Assert the keep-alive E-stop now (Spot's settle_then_cut); the next check-in releases it."""
+        self._query(self.keys.estop_checkin, "checkin",
+                    {"client": self.client_id, "seq": self._next_seq(), "engage": True}, time.monotonic() + timeout)
+
+    @property
+    def link_lost(self) -> str | None:
+        with self._cond:
+            return self._link_error()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._stop_bg.set()
+        if self._bg is not None and self._bg is not threading.current_thread():
+            self._bg.join(timeout=2.0)
+        if self._lease and self._link_error() is None:
+            try:
+                self.release_lease(timeout=0.2)  # the robot stops the body when the lease goes
+            except Exception:  # noqa: BLE001 - closing must go on
+                pass
+        self._closed = True
+        s, self._session = self._session, None
+        if s is not None:
+            try:
+                s.close()  # also ends the callback threads: no hang at interpreter exit
+            except Exception:  # noqa: BLE001
+                pass
+        with self._cond:
+            self._cond.notify_all()
+
+    # ---- wire --------------------------------------------------------------------------------
+    def _next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def _query(self, key: str, kind: str, msg: dict, deadline: float, check_link: bool = True) -> dict:
+        if check_link:
+            with self._cond:
+                err = self._link_error()
+            if err:
+                raise LinkLost(f"link to {self.keys.prefix} lost: {err}")
+        t = max(0.001, min(self.config.query_timeout_s, deadline - time.monotonic()))
+        replies = self._session.get(key, payload=encode(kind, msg), timeout=t)
+        for reply in replies:  # first reply only: one robot side per key
+            if reply.ok is not None:
+                return decode("ack", reply.ok.payload.to_bytes())
+            try:
+                e = decode("error", reply.err.payload.to_bytes())
+            except ProtocolError as pe:
+                raise DriverError(f"robot side sent an unreadable error for {key}: {pe}") from None
+            tag, detail = e["error"], e["detail"]
+            self.stats[f"refused_{tag}"] += 1
+            if tag == "estop":
+                raise EStopActive(detail)
+            if tag in ("no_lease", "lease_refused"):
+                raise LeaseRefused(detail)
+            raise DriverError(f"robot side refused {key}: {tag}: {detail}")
+        with self._cond:
+            err = self._link_error()
+        if err:
+            raise LinkLost(f"link to {self.keys.prefix} lost: {err}")
+        raise DriverTimeout(f"no answer to {key} within {t:.3f} s")
+
+    def _stop_nowait(self) -> None:
+        try:
+            self._session.get(self.keys.cmd_stop, lambda _r: None, payload=encode("stop", {"client": self.client_id}),
+                              timeout=0.2)
+        except Exception:  # noqa: BLE001 - best effort on a link already known bad
+            pass
+
+    def _ensure_lease(self, deadline: float) -> None:
+        if self._lease is None:
+            self._refresh_lease(deadline)
+
+    def _refresh_lease(self, deadline: float) -> None:
+        msg = {"client": self.client_id, "lease": self._lease}
+        ack = self._query(self.keys.lease_acquire, "lease_acquire", msg, deadline)
+        self._lease, self._lease_ttl_ns = ack["lease"], ack["ttl_ns"]
+        self._lease_refreshed_ns = time.monotonic_ns()
+
+    def _checkin(self, deadline: float) -> None:
+        ack = self._query(self.keys.estop_checkin, "checkin", {"client": self.client_id, "seq": self._next_seq()}, deadline)
+        # Spot's EstopKeepAlive checks in at a third of the timeout; a quarter leaves one more try.
+        self._checkin_period_s = max(0.02, ack.get("timeout_ns", 1_000_000_000) * 1e-9 / 4)
+
+    def _background(self) -> None:
+        next_checkin = time.monotonic() + self._checkin_period_s
+        while not self._stop_bg.wait(max(0.0, next_checkin - time.monotonic())):
+            with self._cond:
+                lost = self._link_error()
+            if lost:
+                return  # latched: stop checking in so a robot side that comes back stops itself
+            try:
+                self._checkin(time.monotonic() + self._checkin_period_s)
+                self.stats["checkins"] += 1
+                if self._lease and time.monotonic_ns() - self._lease_refreshed_ns > self._lease_ttl_ns / 4:
+                    try:
+                        self._refresh_lease(time.monotonic() + self._checkin_period_s)
+                    except LeaseRefused:
+                        self._lease = None
+            except DriverError:
+                self.stats["checkin_failed"] += 1
+            next_checkin += self._checkin_period_s
+            if next_checkin < time.monotonic():
+                next_checkin = time.monotonic()
+
+    def _link_error(self) -> str | None:
+        """Why the link is unusable, or None. Call with `_cond` held. Latches the first reason."""
+        if self._lost is None:
+            if self._closed:
+                return "driver closed"
+            if self._state is not None and time.monotonic_ns() - self._state_rx_ns > self._stale_ns:
+                self._lost = f"state stream stalled for {(time.monotonic_ns() - self._state_rx_ns) / 1e6:.0f} ms"
+        return self._lost
+
+    def _wait_connected(self, timeout: float, after_ns: int = 0) -> None:
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not (self._alive and self._state is not None and self._state_rx_ns > after_ns):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._lost:
+                    ends = ", ".join(self.config.link.connect) or "(no connect endpoints)"
+                    raise LinkLost(
+                        f"no robot side for {self.keys.prefix} at {ends} within {timeout} s "
+                        f"(liveliness token {'seen' if self._alive else 'missing'}, state {'seen' if self._state else 'missing'})"
+                    )
+                self._cond.wait(min(remaining, 0.05))
+
+    # ---- callbacks (zenoh threads) -----------------------------------------------------------
+    def _on_state(self, sample) -> None:
+        try:
+            m = decode("state", sample.payload.to_bytes())
+        except ProtocolError:
+            self.stats["bad_state"] += 1
+            return
+        now = time.monotonic_ns()
+        with self._cond:
+            self._state, self._state_rx_ns = m, now
+            c = m.get("cmd")
+            if c and c["status"] in _TERMINAL and c["id"] not in self._results:
+                self._remember(c["id"], {"status": c["status"], "reason": c.get("reason"), "pose": m["pose"]})
+            self._cond.notify_all()
+
+    def _on_feedback(self, sample) -> None:
+        try:
+            m = decode("feedback", sample.payload.to_bytes())
+        except ProtocolError:
+            self.stats["bad_feedback"] += 1
+            return
+        with self._cond:
+            if m["status"] in _TERMINAL:
+                self._remember(m["cmd_id"], {"status": m["status"], "reason": m.get("reason"), "pose": m["pose"]})
+            self._cond.notify_all()
+
+    def _remember(self, cmd_id: int, res: dict) -> None:
+        self._results[cmd_id] = res
+        while len(self._results) > 64:
+            self._results.popitem(last=False)
+
+    def _on_alive(self, sample) -> None:
+        import zenoh
+
+        with self._cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive = True
+            elif self._alive or self._state is not None:
+                self._alive = False
+                if self._lost is None:
+                    self._lost = "robot side gone (liveliness token deleted)"
+            self._cond.notify_all()
