@@ -196,3 +196,32 @@ class LinkConfig:
         for path, value in items.items():
             cfg.insert_json5(path, json.dumps(value))
         return cfg
+
+
+def close_at_interpreter_exit(obj: Any) -> None:
+    """Close `obj` when the interpreter exits, before it waits for non-daemon threads.
+
+    A zenoh subscriber with a Python callback runs on a non-daemon thread that lives as long as
+    the session; a program that forgets `close()` would hang at exit. `threading._register_atexit`
+    (what concurrent.futures uses) runs before that join; plain `atexit` runs after it. Weakly
+    held, so it never keeps a driver alive.
+    """
+    import threading
+    import weakref
+
+    ref = weakref.ref(obj)
+
+    def _close() -> None:
+        o = ref()
+        if o is not None:
+            try:
+                o.close()
+            except Exception:  # noqa: BLE001 - exit must go on
+                pass
+
+    register = getattr(threading, "_register_atexit", None)
+    if register is not None:
+        try:
+            register(_close)
+        except RuntimeError:  # already shutting down
+            pass

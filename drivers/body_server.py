@@ -18,7 +18,16 @@ import time
 from dataclasses import dataclass, field
 
 from capm_field.geometry import SE2
-from drivers.body_protocol import QUERIES, Keys, LinkConfig, ProtocolError, decode, encode, pose_map
+from drivers.body_protocol import (
+    QUERIES,
+    Keys,
+    LinkConfig,
+    ProtocolError,
+    close_at_interpreter_exit,
+    decode,
+    encode,
+    pose_map,
+)
 from drivers.interfaces import EStopActive
 
 log = logging.getLogger(__name__)
@@ -115,6 +124,7 @@ class BodyServer:
         self.backend.keepalive(False, "no_estop_checkin")  # E-stopped until a client checks in (as Spot without an endpoint)
         self._keepalive_ok = False
         s = self._session = zenoh.open(self.config.link.zenoh_config())
+        close_at_interpreter_exit(self)
         try:
             self._state_pub = s.declare_publisher(
                 self.keys.state, congestion_control=zenoh.CongestionControl.DROP, express=True

@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 from capm_field.geometry import SE2
-from drivers.body_protocol import Keys, LinkConfig, ProtocolError, decode, encode, pose_map
+from drivers.body_protocol import Keys, LinkConfig, ProtocolError, close_at_interpreter_exit, decode, encode, pose_map
 from drivers.interfaces import (
     Body,
     BodyState,
@@ -76,6 +76,7 @@ class ZenohBody(Body):
         self._stop_bg = threading.Event()
         self._bg: threading.Thread | None = None
         self._session = zenoh.open(cfg.link.zenoh_config())
+        close_at_interpreter_exit(self)
         try:
             s = self._session
             self._token = s.liveliness().declare_token(self.keys.client(self.client_id))

@@ -125,3 +125,37 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+# ---- helpers for tests and the bench -------------------------------------------------------------
+def free_port() -> int:
+    """A TCP port on loopback that was free a moment ago (bind to 0, read, release)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def spawn_server(port: int, robot_id: str = "spot", *extra: str, timeout: float = 20.0):
+    """Start `python -m sim_bench.zenoh_body_server` on loopback; returns the Popen once READY."""
+    import os
+    import subprocess
+    import time
+
+    cmd = [sys.executable, "-m", "sim_bench.zenoh_body_server", "--listen", f"tcp/127.0.0.1:{port}",
+           "--robot-id", robot_id, *extra]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    deadline = time.monotonic() + timeout
+    line = ""
+    # readline blocks; a server that never gets ready dies on its own error (printed below)
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if line.startswith("READY") or not line:
+            break
+    if not line.startswith("READY"):
+        proc.kill()
+        err = proc.stderr.read()[-2000:]
+        raise RuntimeError(f"body server on port {port} did not start: {err}")
+    return proc

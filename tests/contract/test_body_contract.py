@@ -1,0 +1,130 @@
+"""The body contract, run against the in-process SimBodyDriver and the real ZenohBody over a
+wire-level sim (loopback zenoh, server in a thread). Same tests, same expectations: the
+mission executive cannot tell them apart."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import pytest
+
+from capm_field.config import BodyConfig
+from capm_field.geometry import SE2
+from drivers.interfaces import Body, BodyState, DriverTimeout, EStopActive
+from sim_bench.sim_body import SimBody, SimBodyDriver
+from sim_bench.zenoh_body_server import free_port, serve_sim_body
+
+# A brisk body keeps the real-time (wire) variant short; both variants use the same limits.
+FAST = BodyConfig(max_speed=2.0, max_accel=4.0, max_yaw_rate=3.0)
+
+
+@dataclass
+class Harness:
+    body: Body
+    sim: SimBody
+    settle: Callable[[], None]  # let the state reach the driver (a no-op in process)
+
+
+@pytest.fixture(params=["inprocess", "zenoh"])
+def harness(request):
+    if request.param == "inprocess":
+        drv = SimBodyDriver(SimBody(config=FAST, seed=3))
+        yield Harness(drv, drv.sim, lambda: None)
+        drv.close()
+        return
+    from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
+
+    port = free_port()
+    bench = serve_sim_body("contract", [f"tcp/127.0.0.1:{port}"], body=FAST, seed=3)
+    try:
+        body = ZenohBody(ZenohBodyConfig.loopback(port, "contract"))
+        try:
+            yield Harness(body, bench.sim, lambda: time.sleep(0.05))
+        finally:
+            body.close()
+    finally:
+        bench.close()
+
+
+def test_state_at_rest(harness):
+    st = harness.body.state()
+    assert isinstance(st, BodyState)
+    assert st.powered and not st.estop and not st.moving and st.fault is None
+    assert st.pose == SE2(0.0, 0.0, 0.0) and st.odometry_m == 0.0
+
+
+def test_move_arrives_and_meters_distance(harness):
+    goal = SE2(0.6, -0.3, 0.5)
+    before = harness.body.state()
+    r = harness.body.move_to(goal, timeout=10.0)
+    assert r.ok and r.reason is None
+    assert isinstance(r.final, SE2)
+    assert r.final.distance(goal) < 0.03 and abs(r.final.yaw - goal.yaw) < 0.03
+    harness.settle()
+    st = harness.body.state()
+    assert not st.moving
+    assert st.pose.distance(r.final) < 1e-6
+    assert st.odometry_m == pytest.approx(math.hypot(0.6, 0.3), abs=0.03)
+    assert st.stamp_ns > before.stamp_ns
+    assert r.extra["distance_m"] == pytest.approx(math.hypot(0.6, 0.3), abs=0.03)
+
+
+def test_timeout_stops_the_body(harness):
+    with pytest.raises(DriverTimeout):
+        harness.body.move_to(SE2(5.0, 0.0, 0.0), timeout=0.3)
+    harness.settle()
+    st = harness.body.state()
+    assert not st.moving
+    assert 0.0 < st.pose.x < 1.0
+
+
+def test_motion_failure_is_a_failed_result(harness):
+    harness.sim.inject_motion_failure(after_s=0.1, reason="blocked")
+    r = harness.body.move_to(SE2(1.0, 0.0, 0.0), timeout=10.0)
+    assert not r.ok and r.reason == "blocked"
+    assert 0.0 < r.final.x < 1.0
+    harness.settle()
+    assert not harness.body.state().moving
+
+
+def test_slip_arrives_with_an_offset(harness):
+    harness.sim.inject_slip(0.2, 0.0)
+    r = harness.body.move_to(SE2(0.3, 0.0, 0.0), timeout=10.0)
+    assert r.ok
+    assert r.final.x == pytest.approx(0.5, abs=0.03)
+
+
+def test_estop_refuses_motion_until_released(harness):
+    harness.sim.press_estop()
+    harness.settle()
+    assert harness.body.state().estop
+    with pytest.raises(EStopActive):
+        harness.body.move_to(SE2(0.3, 0.0, 0.0), timeout=5.0)
+    harness.sim.release_estop()
+    harness.settle()
+    assert not harness.body.state().estop
+    assert harness.body.move_to(SE2(0.3, 0.0, 0.0), timeout=10.0).ok
+
+
+def test_not_powered_is_a_failed_result(harness):
+    harness.sim.set_power(False)
+    harness.settle()
+    assert not harness.body.state().powered
+    r = harness.body.move_to(SE2(0.3, 0.0, 0.0), timeout=5.0)
+    assert not r.ok and r.reason == "not_powered"
+
+
+def test_stop_and_close_never_raise(harness):
+    harness.body.stop()
+    harness.body.stop()
+    harness.body.close()
+    harness.body.close()
+
+
+def test_non_finite_goal_is_refused_before_anything_moves(harness):
+    with pytest.raises(ValueError):
+        harness.body.move_to(SE2(float("nan"), 0.0, 0.0), timeout=1.0)
+    assert harness.sim.moves == 0
