@@ -40,7 +40,9 @@ class BodyConfig(_Frozen):
     # the arm may not enter it and the camera / flame may not look through it. This is what
     # gives R_o and R_m their inner bounds (the robot cannot see or flame under itself).
     keepout_radius: float = Field(0.35, ge=0.0, description="radius of the body keep-out cylinder (m)")
-    keepout_depth: float = Field(0.45, ge=0.0, description="cylinder extends this far below the arm base (m)")
+    keepout_depth: float | None = Field(
+        None, ge=0.0, description="cylinder extends this far below the arm base (m); None: down to the ground (legs)"
+    )
     max_speed: float = Field(0.8, gt=0.0, description="body translation speed limit (m/s)")
     max_yaw_rate: float = Field(1.0, gt=0.0, description="body yaw rate limit (rad/s)")
     max_accel: float = Field(0.8, gt=0.0, description="body acceleration limit (m/s^2)")
@@ -80,9 +82,14 @@ class CameraConfig(_Frozen):
 
 
 class NozzleConfig(_Frozen):
-    """Flame nozzle tool frame: its x axis is the flame direction; X_e of EPMC is its origin."""
+    """Flame nozzle tool frame: its x axis is the flame direction; X_e of EPMC is its origin.
 
-    tool: Transform = Field(default_factory=lambda: Transform(xyz=(0.16, 0.0, 0.0)))
+    Default: the nozzle tip of a 0.45 m flame lance along the flange axis. With the arm base at
+    0.8 m the Z1 (joint 2 ∈ [0°, 170°]: the upper arm never points below the shoulder) cannot bring a
+    short tool within √ε_max = 0.32 m of the ground; a lance, as on hand-held flame weeders, can.
+    """
+
+    tool: Transform = Field(default_factory=lambda: Transform(xyz=(0.45, 0.0, 0.0)))
     max_tilt: float = Field(1.2, gt=0.0, le=1.5707963267948966, description="max angle of the flame axis from vertical (rad)")
 
 
@@ -101,7 +108,7 @@ class RobotConfig(_Frozen):
 class TaskConfig(_Frozen):
     """Task constraints and energy model (paper §IV-A, §IV-D, §IV-E)."""
 
-    delta: float = Field(0.10, gt=0.0, le=1.0, description="δ: min projected-TROI area / image area (NSV resolution)")
+    delta: float = Field(0.15, gt=0.0, le=1.0, description="δ: min projected-TROI area / image area (NSV resolution)")
     eps_min: float = Field(0.05, ge=0.0, description="ε_min: min ‖X_e − X̄_w‖² (m²) for EPMC")
     eps_max: float = Field(0.10, gt=0.0, description="ε_max: max ‖X_e − X̄_w‖² (m²) for EPMC")
     xi: float = Field(3.0, gt=0.0, description="ξ: flame hold time for MTC (s)")

@@ -164,24 +164,44 @@ class RobotModel:
         return BatchFK(camera=cam, nozzle=noz, points=np.stack(pts, axis=1))
 
     # ---- body keep-out and ground ----------------------------------------------------------
+    @property
+    def keepout_depth(self) -> float:
+        d = self.cfg.body.keepout_depth
+        return self.height if d is None else min(d, self.height)
+
     def in_keepout(self, p_base: np.ndarray) -> np.ndarray:
         """Points (…, 3) in the arm-base frame inside the body keep-out cylinder or below ground clearance."""
         b = self.cfg.body
         r = np.hypot(p_base[..., 0], p_base[..., 1])
-        body = (r < b.keepout_radius) & (p_base[..., 2] < 0.0) & (p_base[..., 2] > -b.keepout_depth)
+        body = (r < b.keepout_radius) & (p_base[..., 2] < 0.0) & (p_base[..., 2] > -self.keepout_depth)
         ground = p_base[..., 2] < -self.height + self.cfg.arm.min_clearance
         return body | ground
 
-    def segment_blocked(self, a: np.ndarray, b: np.ndarray, samples: int = 24) -> np.ndarray:
-        """Whether segments a→b (…, 3) (arm-base frame) pass through the body keep-out cylinder."""
-        t = np.linspace(0.0, 1.0, samples)[:, None]
-        a = np.asarray(a, dtype=float)[..., None, :]
-        b = np.asarray(b, dtype=float)[..., None, :]
-        p = a + t * (b - a)
+    def segment_blocked(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Whether segments a→b (…, 3) in the arm-base frame pass through the body keep-out cylinder.
+
+        Exact: clip the segment to the cylinder's z-slab, then test the clipped piece's distance
+        to the axis in the xy plane. Used for camera view rays and the flame ray (occlusion).
+        """
+        a = np.asarray(a, dtype=float)
+        b = np.asarray(b, dtype=float)
         bc = self.cfg.body
-        r = np.hypot(p[..., 0], p[..., 1])
-        inside = (r < bc.keepout_radius) & (p[..., 2] < 0.0) & (p[..., 2] > -bc.keepout_depth)
-        return inside.any(axis=-1)
+        d = b - a
+        dz = d[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = np.where(dz != 0, (0.0 - a[..., 2]) / dz, -np.inf)
+            t2 = np.where(dz != 0, (-self.keepout_depth - a[..., 2]) / dz, np.inf)
+        flat_inside = (dz == 0) & (a[..., 2] < 0.0) & (a[..., 2] > -self.keepout_depth)
+        tlo = np.where(dz == 0, np.where(flat_inside, 0.0, 1.0), np.maximum(0.0, np.minimum(t1, t2)))
+        thi = np.where(dz == 0, np.where(flat_inside, 1.0, 0.0), np.minimum(1.0, np.maximum(t1, t2)))
+        dxy = d[..., :2]
+        axy = a[..., :2]
+        n2 = np.einsum("...i,...i->...", dxy, dxy)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ts = np.where(n2 > 0, -np.einsum("...i,...i->...", axy, dxy) / n2, tlo)
+        ts = np.clip(ts, tlo, np.maximum(tlo, thi))
+        closest = axy + ts[..., None] * dxy
+        return (tlo <= thi) & (np.hypot(closest[..., 0], closest[..., 1]) < bc.keepout_radius)
 
     def config_valid(self, q: np.ndarray) -> bool:
         """Joint limits hold and no arm point enters the keep-out volume or the ground."""
