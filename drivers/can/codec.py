@@ -1,0 +1,226 @@
+"""Encode/decode capm frames with cantools and protect them with a rolling counter + CRC-8.
+
+cantools packs the signals from `capm.dbc`; it does not compute counters or checksums, so this
+module does (docs/protocols/can.md is the reference for a gateway author):
+
+* Counter: 4 bits, byte 6 bits 0-3, +1 mod 16 per transmitted frame of one id (the two halves
+  of a joint-target or joint-state set share one value).
+* Checksum: byte 7 = CRC-8 SAE J1850 (poly 0x1D, init 0xFF, xorout 0xFF, no reflection) over
+  ``[id & 0xFF, (id >> 8) & 0xFF, b0 .. b7]`` with b7 (the checksum itself) set to 0.
+  Including the id stops a payload that is valid for one frame being accepted as another.
+
+Receivers (`Receiver`) reject — and count, never act on — unknown ids, wrong DLC, bad
+checksum, repeated counters and out-of-sequence (stale / reordered) counters.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import Counter as _Tally
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import can
+import cantools
+
+DBC_PATH = Path(__file__).with_name("capm.dbc")
+
+# node ids (CANopen style: heartbeat id = 0x700 + node id)
+NODE_HOST_ARM = 0x01
+NODE_HOST_IGN = 0x02
+NODE_ARM_GW = 0x11
+NODE_IGN_BOARD = 0x12
+HEARTBEAT_BASE = 0x700
+
+NMT_BOOTUP, NMT_STOPPED, NMT_OPERATIONAL, NMT_PRE_OPERATIONAL = 0, 4, 5, 127
+
+# command / code tables (mirrors the DBC VAL_ tables)
+IGN_NOP, IGN_ARM, IGN_DISARM, IGN_IGNITE, IGN_EXTINGUISH, IGN_RESET = range(6)
+ARM_NOP, ARM_ENABLE, ARM_DISABLE, ARM_STOP, ARM_STOW, ARM_RESET = range(6)
+IGN_FAULTS = {0: None, 1: "ignition_failed", 2: "flame_out", 3: "fuel_empty", 4: "hardware"}
+IGN_FAULT_CODES = {v: k for k, v in IGN_FAULTS.items() if v}
+IGN_EVENTS = {0: None, 1: "keepalive_timeout", 2: "bad_frame", 3: "host_lost", 4: "not_armed", 5: "extinguished"}
+IGN_EVENT_CODES = {v: k for k, v in IGN_EVENTS.items() if v}
+ARM_MODES = {0: "disabled", 1: "holding", 2: "tracking", 3: "stowing", 4: "fault"}
+ARM_MODE_CODES = {v: k for k, v in ARM_MODES.items()}
+ARM_FAULTS = {0: None, 1: "target_out_of_range", 2: "target_jump", 3: "host_lost", 4: "drive_fault", 5: "estop"}
+ARM_FAULT_CODES = {v: k for k, v in ARM_FAULTS.items() if v}
+
+COUNTER_BYTE, CHECKSUM_BYTE = 6, 7
+
+
+# ---- CRC-8 SAE J1850 -------------------------------------------------------------------------
+def _crc_table() -> list[int]:
+    table = []
+    for i in range(256):
+        c = i
+        for _ in range(8):
+            c = ((c << 1) ^ 0x1D) & 0xFF if c & 0x80 else (c << 1) & 0xFF
+        table.append(c)
+    return table
+
+
+_TABLE = _crc_table()
+
+
+def crc8_j1850(data: bytes | bytearray) -> int:
+    """CRC-8 SAE J1850: poly 0x1D, init 0xFF, xorout 0xFF. check("123456789") == 0x4B."""
+    c = 0xFF
+    for b in data:
+        c = _TABLE[c ^ b]
+    return c ^ 0xFF
+
+
+def frame_checksum(frame_id: int, data: bytes | bytearray) -> int:
+    """Checksum of an 8-byte protected frame: CRC over id (LE, 2 bytes) + payload with byte 7 = 0."""
+    buf = bytearray((frame_id & 0xFF, (frame_id >> 8) & 0xFF)) + bytearray(data)
+    buf[2 + CHECKSUM_BYTE] = 0
+    return crc8_j1850(buf)
+
+
+# ---- database --------------------------------------------------------------------------------
+@lru_cache(maxsize=1)
+def database() -> cantools.database.can.Database:
+    return cantools.database.load_file(str(DBC_PATH))
+
+
+def is_protected(msg_def) -> bool:
+    names = {s.name for s in msg_def.signals}
+    return "Counter" in names and "Checksum" in names
+
+
+class Encoder:
+    """Builds protected frames; keeps one rolling counter per frame id (thread-safe)."""
+
+    def __init__(self) -> None:
+        self.db = database()
+        self._counters: dict[int, int] = {}
+        self._lock = threading.Lock()
+
+    def next_counter(self, name: str) -> int:
+        fid = self.db.get_message_by_name(name).frame_id
+        with self._lock:
+            c = self._counters.get(fid, 15)
+            c = (c + 1) & 0x0F
+            self._counters[fid] = c
+            return c
+
+    def encode(self, name: str, signals: dict, counter: int | None = None) -> can.Message:
+        """Encode `signals` (physical values); Counter/Checksum are filled in here.
+
+        `counter=None` takes the next value of this id's counter; pass one explicitly to give
+        the two halves of a target/state set the same value (or to inject faults in tests).
+        """
+        m = self.db.get_message_by_name(name)
+        sig = dict(signals)
+        if is_protected(m):
+            sig["Counter"] = self.next_counter(name) if counter is None else counter & 0x0F
+            sig["Checksum"] = 0
+        data = bytearray(m.encode(sig, scaling=True, strict=True))
+        if is_protected(m):
+            data[CHECKSUM_BYTE] = frame_checksum(m.frame_id, data)
+        return can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False)
+
+    def heartbeat(self, name: str, node_id: int, period: float, state: int = NMT_OPERATIONAL) -> can.Message:
+        return self.encode(name, {"NmtState": state, "NodeId": node_id, "PeriodMs": int(round(period * 1000))})
+
+
+# ---- reception -------------------------------------------------------------------------------
+REJECT_REASONS = ("unknown_id", "dlc", "remote_or_error", "checksum", "counter_repeated", "counter_sequence", "decode")
+
+
+@dataclass
+class RxStats:
+    accepted: int = 0
+    lost: int = 0  # frames missing according to counter steps > 1
+    ignored: int = 0  # known ids meant for another node
+    rejected: _Tally = field(default_factory=_Tally)
+
+    @property
+    def rejected_total(self) -> int:
+        return sum(self.rejected.values())
+
+    def as_dict(self) -> dict:
+        return {"accepted": self.accepted, "lost": self.lost, "ignored": self.ignored, "rejected": dict(self.rejected)}
+
+
+class _CounterCheck:
+    """AUTOSAR-E2E-like counter check for one id: step 1 ok, 2..max_jump ok with loss,
+    0 = repeated, anything else = out of sequence. Resync after a sender restart: a rejected
+    counter becomes a candidate, and a frame that follows the candidate by 1 is accepted."""
+
+    def __init__(self, max_jump: int) -> None:
+        self.max_jump = max_jump
+        self.last: int | None = None
+        self.candidate: int | None = None
+
+    def check(self, c: int) -> tuple[str | None, int]:
+        """Returns (reject reason or None, number of frames lost)."""
+        if self.last is None:
+            self.last = c
+            return None, 0
+        d = (c - self.last) & 0x0F
+        if 1 <= d <= self.max_jump:
+            self.last, self.candidate = c, None
+            return None, d - 1
+        if self.candidate is not None and ((c - self.candidate) & 0x0F) == 1:
+            self.last, self.candidate = c, None
+            return None, 0
+        self.candidate = c
+        return ("counter_repeated" if d == 0 else "counter_sequence"), 0
+
+
+class Receiver:
+    """Validates and decodes the frames one node consumes.
+
+    `accept(msg)` returns (name, signals) for a valid frame of a consumed id, else None; every
+    rejection is counted in `stats.rejected[reason]` (ids of the DBC meant for other nodes are
+    only counted as `ignored`). Call from one thread (the Notifier's or the node's loop).
+    """
+
+    def __init__(self, consume: set[str], max_counter_jump: int = 3) -> None:
+        self.db = database()
+        self._consume = {self.db.get_message_by_name(n).frame_id for n in consume}
+        self._known = {m.frame_id for m in self.db.messages}
+        self._checks = {fid: _CounterCheck(max_counter_jump) for fid in self._consume}
+        self.stats = RxStats()
+        self.last_reject: str | None = None
+
+    def _reject(self, reason: str) -> None:
+        self.stats.rejected[reason] += 1
+        self.last_reject = reason
+
+    def accept(self, msg: can.Message) -> tuple[str, dict] | None:
+        fid = msg.arbitration_id
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            self._reject("remote_or_error" if fid in self._known or msg.is_error_frame else "unknown_id")
+            return None
+        if fid not in self._known:
+            self._reject("unknown_id")
+            return None
+        if fid not in self._consume:
+            self.stats.ignored += 1
+            return None
+        m = self.db.get_message_by_frame_id(fid)
+        data = bytes(msg.data)
+        if len(data) != m.length or msg.dlc != m.length:
+            self._reject("dlc")
+            return None
+        protected = is_protected(m)
+        if protected and data[CHECKSUM_BYTE] != frame_checksum(fid, data):
+            self._reject("checksum")
+            return None
+        try:
+            sig = m.decode(data, decode_choices=False, scaling=True)
+        except Exception:  # noqa: BLE001 - any decode problem is a rejected frame
+            self._reject("decode")
+            return None
+        if protected:
+            reason, lost = self._checks[fid].check(int(sig["Counter"]))
+            if reason:
+                self._reject(reason)
+                return None
+            self.stats.lost += lost
+        self.stats.accepted += 1
+        return m.name, sig

@@ -1,0 +1,169 @@
+"""One CAN node on the host side: bus + Notifier + Receiver + CANopen-style heartbeats.
+
+The adapters (`CanArm`, `CanIgniter`) each own one `CanLink`. It opens the python-can bus from
+config, runs exactly one `Notifier` on it (decoded, validated frames go to `on_frame` in the
+Notifier's thread), produces the host heartbeat and consumes the peer's: no valid peer
+heartbeat for `timeout` s (or a peer not OPERATIONAL, or a send error such as bus-off) makes
+the link lost, which the adapters turn into `LinkLost`. `close()` stops the heartbeat thread,
+then the Notifier, then shuts the bus down (that order: see DEPENDENCY_NOTES, python-can).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+import can
+
+from drivers.interfaces import LinkLost
+
+from .codec import HEARTBEAT_BASE, NMT_OPERATIONAL, Encoder, Receiver
+from .config import CanBusConfig, HeartbeatConfig
+
+
+def open_bus(cfg: CanBusConfig) -> can.BusABC:
+    kw = {"interface": cfg.interface, "channel": cfg.channel}
+    if cfg.bitrate is not None:
+        kw["bitrate"] = cfg.bitrate
+    try:
+        return can.Bus(**kw)
+    except (can.CanError, OSError, ValueError, ImportError) as e:
+        raise LinkLost(f"cannot open CAN bus {cfg.interface}:{cfg.channel}: {e}") from e
+
+
+class CanLink(can.Listener):
+    def __init__(
+        self,
+        bus_cfg: CanBusConfig,
+        hb_cfg: HeartbeatConfig,
+        own_heartbeat: str,
+        own_node: int,
+        peer_heartbeat: str,
+        consume: set[str],
+        on_frame: Callable[[str, dict], None],
+        max_counter_jump: int = 3,
+        on_lost: Callable[[str], None] | None = None,
+    ) -> None:
+        self.hb_cfg = hb_cfg
+        self.encoder = Encoder()
+        self._own_hb, self._own_node = own_heartbeat, own_node
+        self._peer_hb = peer_heartbeat
+        self._peer_hb_id = self.encoder.db.get_message_by_name(peer_heartbeat).frame_id
+        self.receiver = Receiver(set(consume) | {peer_heartbeat}, max_counter_jump)
+        self._on_frame, self._on_lost = on_frame, on_lost
+        self._lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self.opened_ns = time.monotonic_ns()
+        self.last_peer_hb_ns: int | None = None
+        self.peer_state: int | None = None
+        self.lost_reason: str | None = "no heartbeat yet"
+        self.lost_detected_ns: int | None = None
+        self.peer_seen = threading.Event()
+        self._closed = False
+        self.bus = open_bus(bus_cfg)
+        self.notifier = can.Notifier(self.bus, [self])
+        self._thread = threading.Thread(target=self._run, name=f"canlink-{own_heartbeat}", daemon=True)
+        self._thread.start()
+
+    # ---- rx (Notifier thread) ------------------------------------------------------------
+    def on_message_received(self, msg: can.Message) -> None:
+        got = self.receiver.accept(msg)
+        if got is None:
+            return
+        name, sig = got
+        if name == self._peer_hb:
+            with self._lock:
+                self.last_peer_hb_ns = time.monotonic_ns()
+                self.peer_state = int(sig["NmtState"])
+                if self.peer_state == NMT_OPERATIONAL:
+                    self.lost_reason = None
+                    self.lost_detected_ns = None
+                else:
+                    self._mark_lost_locked(f"peer node state {self.peer_state} (not operational)")
+            self.peer_seen.set()
+            self._wake.set()
+            return
+        self._on_frame(name, sig)
+
+    def on_error(self, exc: Exception) -> None:
+        self.mark_lost(f"bus error: {exc}")
+
+    # ---- heartbeat producer + consumer -----------------------------------------------------
+    def _run(self) -> None:
+        period = self.hb_cfg.period
+        next_hb = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_hb:
+                self.send(self.encoder.heartbeat(self._own_hb, self._own_node, period))
+                next_hb += period
+                if next_hb < now:  # fell behind (loaded CPU): do not burst
+                    next_hb = now + period
+            with self._lock:
+                last = self.last_peer_hb_ns
+                deadline = (last / 1e9 + self.hb_cfg.timeout) if last is not None else None
+                if last is not None and self.lost_reason is None and time.monotonic() >= deadline:
+                    self._mark_lost_locked(f"no heartbeat from {self._peer_hb} for {self.hb_cfg.timeout:.3f} s")
+            wake_at = next_hb if deadline is None or self.lost_reason is not None else min(next_hb, deadline)
+            self._wake.wait(max(0.0, wake_at - time.monotonic()))
+            self._wake.clear()
+
+    def _mark_lost_locked(self, reason: str) -> None:
+        first = self.lost_reason is None
+        self.lost_reason = reason
+        if first:
+            self.lost_detected_ns = time.monotonic_ns()
+            if self._on_lost is not None:
+                threading.Thread(target=self._on_lost, args=(reason,), daemon=True).start()
+
+    def mark_lost(self, reason: str) -> None:
+        with self._lock:
+            self._mark_lost_locked(reason)
+
+    # ---- API ------------------------------------------------------------------------------
+    @property
+    def ok(self) -> bool:
+        return self.lost_reason is None and not self._closed
+
+    def check(self) -> None:
+        """Raise LinkLost unless the peer heartbeat is current."""
+        if self._closed:
+            raise LinkLost("adapter closed")
+        reason = self.lost_reason
+        if reason is not None:
+            raise LinkLost(reason)
+
+    def wait_peer(self, timeout: float) -> None:
+        if not self.peer_seen.wait(timeout):
+            raise LinkLost(f"no heartbeat from {self._peer_hb} within {timeout:.2f} s (is the gateway on the bus?)")
+
+    def send(self, msg: can.Message) -> bool:
+        """Send a frame; a send error marks the link lost (bus-off, closed) and returns False."""
+        if self._closed:
+            return False
+        try:
+            with self._send_lock:
+                self.bus.send(msg, timeout=0.01)
+            return True
+        except (can.CanError, OSError, ValueError) as e:
+            self.mark_lost(f"send failed: {e}")
+            return False
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._stop.set()
+        self._wake.set()
+        self._thread.join(timeout=1.0)
+        self._closed = True
+        try:
+            self.notifier.stop(timeout=1.0)  # before bus.shutdown(): see DEPENDENCY_NOTES
+        finally:
+            self.bus.shutdown()
+
+
+def heartbeat_id(node: int) -> int:
+    return HEARTBEAT_BASE + node

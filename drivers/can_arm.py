@@ -1,0 +1,268 @@
+"""`CanArm`: the Unitree Z1 behind its CAN gateway (protocol: docs/protocols/can.md).
+
+Moves stream joint targets at 500 Hz (minimum-jerk from the measured joints, timed within the
+joint speed limit) as ARM_TARGET_A/B pairs; the gateway servoes to them and reports joint
+state (100 Hz) and status (20 Hz + on change). `move_to_pose` solves IK with RobotModel first.
+Outcomes: MoveResult(ok=False, reason) for motion failures (joint_limit, ik_failed, gateway
+fault codes), DriverTimeout when `timeout` runs out, LinkLost when the gateway heartbeat stops
+(or the bus fails); every failure path sends STOP (best effort) before returning or raising.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from capm_field.robot_model import RobotModel
+
+from .arm_common import MinJerk, arm_state, solve_ik, within_limits
+from .can.codec import (
+    ARM_ENABLE,
+    ARM_FAULTS,
+    ARM_MODES,
+    ARM_RESET,
+    ARM_STOP,
+    ARM_STOW,
+    NODE_HOST_ARM,
+)
+from .can.config import CanArmConfig
+from .can.link import CanLink
+from .interfaces import Arm, ArmState, DriverTimeout, LinkLost, MoveResult
+
+
+@dataclass
+class StreamStats:
+    sent: int = 0  # target pairs sent
+    overruns: int = 0  # ticks more than 5 periods late (skipped, not burst)
+    duration_s: float = 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        return self.sent / self.duration_s if self.duration_s > 0 else 0.0
+
+
+class CanArm(Arm):
+    def __init__(self, cfg: CanArmConfig | None = None, robot: RobotModel | None = None, connect_timeout: float = 1.0) -> None:
+        self.cfg = cfg or CanArmConfig()
+        self.robot = robot or RobotModel()
+        self.vmax = self.robot.cfg.arm.max_joint_speed
+        self._cv = threading.Condition()
+        self._q: np.ndarray | None = None
+        self._q_stamp = 0
+        self._pending_a: tuple[int, tuple[float, float, float]] | None = None
+        self._status: dict = {"Mode": 0, "Enabled": 0, "Moving": 0, "Stowed": 0, "FaultCode": 0, "RxRejected": 0}
+        self._status_seen = False
+        self._closed = False
+        self.last_stream = StreamStats()
+        self.link = CanLink(
+            self.cfg.bus,
+            self.cfg.heartbeat,
+            own_heartbeat="HB_HOST_ARM",
+            own_node=NODE_HOST_ARM,
+            peer_heartbeat="HB_ARM_GW",
+            consume={"ARM_STATE_A", "ARM_STATE_B", "ARM_STATUS"},
+            on_frame=self._on_frame,
+            max_counter_jump=self.cfg.max_counter_jump,
+        )
+        try:
+            self.link.wait_peer(connect_timeout)
+            self._wait(lambda: self._q is not None and self._status_seen, time.monotonic() + connect_timeout, "first arm state")
+        except BaseException:
+            self.link.close()
+            raise
+
+    # ---- rx (Notifier thread) ----------------------------------------------------------------
+    def _on_frame(self, name: str, sig: dict) -> None:
+        with self._cv:
+            if name == "ARM_STATE_A":
+                self._pending_a = (int(sig["Counter"]), (sig["J1_Position"], sig["J2_Position"], sig["J3_Position"]))
+                return
+            if name == "ARM_STATE_B":
+                # a state set is the A and B frame with the same counter; a lone half is dropped
+                if self._pending_a is None or self._pending_a[0] != int(sig["Counter"]):
+                    return
+                self._q = np.array([*self._pending_a[1], sig["J4_Position"], sig["J5_Position"], sig["J6_Position"]])
+                self._q_stamp = time.monotonic_ns()
+                self._pending_a = None
+            elif name == "ARM_STATUS":
+                self._status = {k: int(v) for k, v in sig.items()}
+                self._status_seen = True
+            self._cv.notify_all()
+
+    # ---- helpers -----------------------------------------------------------------------------
+    @property
+    def fault(self) -> str | None:
+        return ARM_FAULTS.get(self._status["FaultCode"], "unknown") if self._status["Mode"] == 4 or self._status["FaultCode"] else None
+
+    @property
+    def mode(self) -> str:
+        return ARM_MODES.get(self._status["Mode"], "unknown")
+
+    def _joints(self) -> np.ndarray:
+        with self._cv:
+            return self._q.copy()
+
+    def _check(self) -> None:
+        if self._closed:
+            raise LinkLost("adapter closed")
+        try:
+            self.link.check()
+        except LinkLost:
+            self._command(ARM_STOP)
+            raise
+
+    def _command(self, cmd: int) -> None:
+        self.link.send(self.link.encoder.encode("ARM_CMD", {"Command": cmd}))
+
+    def _wait(self, pred: Callable[[], bool], deadline: float, what: str) -> None:
+        with self._cv:
+            while not pred():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise DriverTimeout(f"timed out waiting for {what}")
+                self._cv.wait(min(left, 0.02))
+                if self.link.lost_reason is not None and self.link.peer_seen.is_set():
+                    raise LinkLost(self.link.lost_reason)
+
+    def _ensure_enabled(self, deadline: float) -> None:
+        if self._status["Enabled"]:
+            return
+        self._command(ARM_ENABLE)
+        self._wait(lambda: bool(self._status["Enabled"]) or self.fault is not None, min(deadline, time.monotonic() + self.cfg.enable_timeout), "arm enable")
+
+    def _send_target(self, q: np.ndarray) -> None:
+        enc = self.link.encoder
+        c = enc.next_counter("ARM_TARGET_A")
+        enc.next_counter("ARM_TARGET_B")  # both ids advance together (shared value)
+        self.link.send(enc.encode("ARM_TARGET_A", {"J1_Target": q[0], "J2_Target": q[1], "J3_Target": q[2]}, counter=c))
+        self.link.send(enc.encode("ARM_TARGET_B", {"J4_Target": q[3], "J5_Target": q[4], "J6_Target": q[5]}, counter=c))
+
+    def _fail(self, reason: str) -> MoveResult:
+        self._command(ARM_STOP)
+        return MoveResult(False, reason, final=self._joints())
+
+    def stream(self, traj: Callable[[float], np.ndarray], duration: float, deadline: float) -> MoveResult | None:
+        """Stream traj(t) for t in (0, duration] at the configured rate (absolute-time ticks).
+
+        Returns None when the whole trajectory was sent, a failed MoveResult on a gateway fault;
+        raises LinkLost / DriverTimeout (after STOP). Stats of the last stream: `last_stream`.
+        """
+        period = 1.0 / self.cfg.stream_rate_hz
+        st = self.last_stream = StreamStats()
+        t0 = time.monotonic()
+        k = 0
+        while True:
+            k += 1
+            tick = t0 + k * period
+            now = time.monotonic()
+            if tick > now:
+                time.sleep(tick - now)
+            elif now - tick > 5 * period:  # badly late: re-anchor instead of bursting
+                st.overruns += 1
+                k = int((now - t0) / period)
+                tick = t0 + k * period
+            self._check()
+            if self.fault is not None:
+                st.duration_s = time.monotonic() - t0
+                return self._fail(self.fault)
+            if time.monotonic() >= deadline:
+                self._command(ARM_STOP)
+                raise DriverTimeout("arm move not finished within its timeout")
+            t = k * period
+            self._send_target(traj(min(t, duration)))
+            st.sent += 1
+            if t >= duration:
+                st.duration_s = time.monotonic() - t0
+                return None
+
+    # ---- Arm ---------------------------------------------------------------------------------
+    def move_joints(self, q: np.ndarray, timeout: float) -> MoveResult:
+        deadline = time.monotonic() + timeout
+        self._check()
+        q = np.asarray(q, dtype=float).reshape(6)
+        if not np.all(np.isfinite(q)) or not within_limits(self.robot, q):
+            return MoveResult(False, "joint_limit", final=self._joints())
+        if self.fault is not None:
+            return MoveResult(False, self.fault, final=self._joints())
+        self._ensure_enabled(deadline)
+        if self.fault is not None:
+            return MoveResult(False, self.fault, final=self._joints())
+        traj = MinJerk(self._joints(), q, self.vmax)
+        failed = self.stream(traj, traj.duration, deadline)
+        if failed is not None:
+            return failed
+        try:
+            self._wait(
+                lambda: self.fault is not None or float(np.max(np.abs(self._q - q))) < self.cfg.at_target_tol,
+                deadline,
+                "the arm to reach its target",
+            )
+        except DriverTimeout:
+            self._command(ARM_STOP)
+            raise
+        except LinkLost:
+            self._command(ARM_STOP)
+            raise
+        if self.fault is not None:
+            return self._fail(self.fault)
+        return MoveResult(True, final=self._joints(), extra={"duration_s": traj.duration, "sent": self.last_stream.sent})
+
+    def move_to_pose(self, frame: str, T_base: np.ndarray, timeout: float) -> MoveResult:
+        deadline = time.monotonic() + timeout
+        self._check()
+        sol = solve_ik(self.robot, frame, T_base, self._joints())
+        if sol is None:
+            return MoveResult(False, "ik_failed", final=self._joints())
+        return self.move_joints(sol, max(0.0, deadline - time.monotonic()))
+
+    def stow(self, timeout: float) -> MoveResult:
+        deadline = time.monotonic() + timeout
+        self._check()
+        if self.fault is not None:
+            return MoveResult(False, self.fault, final=self._joints())
+        self._ensure_enabled(deadline)
+        self._command(ARM_STOW)
+        # the gateway reports STOWING (mode 3) until it holds at the stow joints
+        try:
+            stow_q = np.array(self.robot.cfg.arm.stow_joints)
+            self._wait(
+                lambda: self.fault is not None
+                or (self._status["Stowed"] and self._status["Mode"] == 1 and float(np.max(np.abs(self._q - stow_q))) < self.cfg.at_target_tol),
+                deadline,
+                "stow",
+            )
+        except (DriverTimeout, LinkLost):
+            self._command(ARM_STOP)
+            raise
+        if self.fault is not None:
+            return self._fail(self.fault)
+        return MoveResult(True, final=self._joints())
+
+    def reset(self, timeout: float = 1.0) -> None:
+        """Clear a latched gateway fault (the arm is disabled afterwards; the next move enables it)."""
+        self._check()
+        self._command(ARM_RESET)
+        self._wait(lambda: self.fault is None, time.monotonic() + timeout, "fault reset")
+
+    def state(self) -> ArmState:
+        with self._cv:
+            q, stamp, moving = self._q.copy(), self._q_stamp, bool(self._status["Moving"])
+        fault = "link_lost" if not self.link.ok else self.fault
+        return arm_state(self.robot, q, moving, stamp, fault)
+
+    @property
+    def rx_stats(self):
+        return self.link.receiver.stats
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._command(ARM_STOP)  # hold, not DISABLE: a disabled Z1 has no holding torque
+        finally:
+            self.link.close()

@@ -1,0 +1,198 @@
+"""`CanIgniter`: the flame igniter board over CAN (protocol: docs/protocols/can.md).
+
+Safety design: the board keeps the valve open only while valid IGNITE keep-alives arrive
+(gap > 90 ms -> off). This adapter sends them at a fixed rate from inside `ignite()` and only
+while `permit()` is True, the flame hold time has not elapsed, the link is up and the board
+reports no fault; `permit()` is re-checked every `poll_period` (5 ms). EXTINGUISH is sent on
+every exit path of `ignite()` (finally), by `disarm()` and by `close()`; if the host freezes
+or the bus dies the keep-alives stop and the board shuts the valve on its own.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+from .can.codec import (
+    IGN_ARM,
+    IGN_DISARM,
+    IGN_EXTINGUISH,
+    IGN_FAULTS,
+    IGN_IGNITE,
+    IGN_RESET,
+    NODE_HOST_IGN,
+)
+from .can.config import CanIgniterConfig
+from .can.link import CanLink
+from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult
+
+
+class CanIgniter(Igniter):
+    def __init__(self, cfg: CanIgniterConfig | None = None, connect_timeout: float = 1.0) -> None:
+        self.cfg = cfg or CanIgniterConfig()
+        self._cv = threading.Condition()
+        self._status: dict | None = None
+        self._status_stamp = 0
+        self._closed = False
+        self.keepalives_sent = 0
+        self.last_keepalive_ns: int | None = None
+        self.link = CanLink(
+            self.cfg.bus,
+            self.cfg.heartbeat,
+            own_heartbeat="HB_HOST_IGN",
+            own_node=NODE_HOST_IGN,
+            peer_heartbeat="HB_IGN_BOARD",
+            consume={"IGN_STATUS"},
+            on_frame=self._on_frame,
+            max_counter_jump=self.cfg.max_counter_jump,
+            on_lost=lambda _reason: self.extinguish(),
+        )
+        try:
+            self.link.wait_peer(connect_timeout)
+            self._wait(lambda: self._status is not None, time.monotonic() + connect_timeout, "first igniter status")
+        except BaseException:
+            self.link.close()
+            raise
+
+    # ---- rx (Notifier thread) ----------------------------------------------------------------
+    def _on_frame(self, name: str, sig: dict) -> None:
+        with self._cv:
+            self._status = {k: (v if k == "Fuel" else int(v)) for k, v in sig.items()}
+            self._status_stamp = time.monotonic_ns()
+            self._cv.notify_all()
+
+    # ---- helpers -----------------------------------------------------------------------------
+    def _s(self, key: str):
+        return self._status[key]
+
+    @property
+    def fault(self) -> str | None:
+        return IGN_FAULTS.get(self._s("FaultCode"), "unknown") if self._s("FaultLatched") or self._s("FaultCode") else None
+
+    def _command(self, cmd: int) -> bool:
+        if self._closed and cmd not in (IGN_EXTINGUISH, IGN_DISARM):
+            return False
+        return self.link.send(self.link.encoder.encode("IGN_CMD", {"Command": cmd}))
+
+    def _wait(self, pred: Callable[[], bool], deadline: float, what: str) -> None:
+        with self._cv:
+            while not pred():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise DriverTimeout(f"timed out waiting for {what}")
+                self._cv.wait(min(left, 0.02))
+                if self.link.lost_reason is not None and self.link.peer_seen.is_set():
+                    raise LinkLost(self.link.lost_reason)
+
+    def _check(self) -> None:
+        if self._closed:
+            raise LinkLost("adapter closed")
+        self.link.check()
+
+    # ---- Igniter -----------------------------------------------------------------------------
+    def arm(self, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        self._check()
+        if self.fault:
+            raise IgniterFault(f"igniter fault latched: {self.fault} (reset_fault() first)")
+        self._command(IGN_ARM)
+        self._wait(lambda: bool(self._s("Armed")) or self.fault is not None, deadline, "the igniter to arm")
+        if self.fault:
+            raise IgniterFault(f"igniter fault: {self.fault}")
+
+    def disarm(self) -> None:
+        self.extinguish()
+        try:
+            self._command(IGN_DISARM)
+        except Exception:  # noqa: BLE001 - disarm never raises; the board disarms on host loss anyway
+            pass
+
+    def extinguish(self) -> None:
+        try:
+            self._command(IGN_EXTINGUISH)
+        except Exception:  # noqa: BLE001 - never raises; keep-alives have stopped, the board shuts itself
+            pass
+
+    def reset_fault(self, timeout: float = 1.0) -> None:
+        """Clear a latched board fault (the board is disarmed afterwards)."""
+        self._check()
+        self._command(IGN_RESET)
+        self._wait(lambda: self.fault is None, time.monotonic() + timeout, "igniter fault reset")
+
+    def ignite(self, duration: float, permit: Callable[[], bool], timeout: float) -> MoveResult:
+        t0 = time.monotonic()
+        flame_t0: float | None = None
+        flame_s = 0.0
+
+        def result(ok: bool, reason: str | None = None) -> MoveResult:
+            return MoveResult(ok, reason, extra={"flame_s": flame_s, "keepalives": sent})
+
+        sent = 0
+        try:
+            self._check()
+            if self.fault:
+                return result(False, self.fault)
+            if not self._s("Armed"):
+                return result(False, "not_armed")
+            if not permit():
+                return result(False, "permit_denied")
+            ka_period = 1.0 / self.cfg.keepalive_rate_hz
+            next_ka = time.monotonic()
+            while True:
+                now = time.monotonic()
+                with self._cv:
+                    flame, fault, stamp = bool(self._s("FlameOn")), self.fault, self._status_stamp
+                if flame and flame_t0 is None and stamp / 1e9 >= t0:
+                    flame_t0 = now
+                if flame_t0 is not None:
+                    flame_s = now - flame_t0
+                    if flame_s >= duration:
+                        return result(True)
+                    if not flame:
+                        return result(False, fault or "flame_lost")
+                if fault:
+                    return result(False, fault)
+                if not permit():
+                    return result(False, "permit_dropped")
+                self._check()
+                if now - t0 >= timeout:
+                    raise DriverTimeout(f"ignite not complete within {timeout:.3f} s")
+                if now >= next_ka:
+                    # permit, hold time, link and fault were all checked just above
+                    if self._command(IGN_IGNITE):
+                        sent += 1
+                        self.keepalives_sent += 1
+                        self.last_keepalive_ns = time.monotonic_ns()
+                    next_ka = max(next_ka + ka_period, now)
+                with self._cv:  # wake on a status change or at the next poll
+                    self._cv.wait(min(self.cfg.poll_period, max(0.0, next_ka - time.monotonic())))
+        finally:
+            self.extinguish()
+            self._confirm_off(0.2)
+
+    def _confirm_off(self, timeout: float) -> None:
+        """Wait (bounded, never raises) for the board to report the flame off."""
+        try:
+            self._wait(lambda: not self._s("FlameOn") and not self._s("Igniting"), time.monotonic() + timeout, "flame off")
+        except Exception:  # noqa: BLE001 - link gone: the board shuts itself without keep-alives
+            pass
+
+    def state(self) -> IgniterState:
+        with self._cv:
+            s, stamp = dict(self._status), self._status_stamp
+        fault = "link_lost" if not self.link.ok else (IGN_FAULTS.get(s["FaultCode"], "unknown") if s["FaultLatched"] else None)
+        return IgniterState(armed=bool(s["Armed"]), flame_on=bool(s["FlameOn"]), fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault=fault)
+
+    @property
+    def rx_stats(self):
+        return self.link.receiver.stats
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        try:
+            self.extinguish()
+        finally:
+            self._closed = True
+            self.link.close()
