@@ -18,6 +18,7 @@ import secrets
 import threading
 import time
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 from capm_field.geometry import SE2
 from drivers.body_protocol import Keys, LinkConfig, ProtocolError, close_at_interpreter_exit, decode, encode, pose_map
@@ -73,6 +74,7 @@ class ZenohBody(Body):
         self._checkin_period_s = 0.25
         self._seq = 0
         self.stats: collections.Counter[str] = collections.Counter()
+        self._listeners: list[Callable[[BodyState], None]] = []
         self._stop_bg = threading.Event()
         self._bg: threading.Thread | None = None
         self._session = zenoh.open(cfg.link.zenoh_config())
@@ -183,6 +185,16 @@ class ZenohBody(Body):
         """Assert the keep-alive E-stop now (Spot's settle_then_cut); the next check-in releases it."""
         self._query(self.keys.estop_checkin, "checkin",
                     {"client": self.client_id, "seq": self._next_seq(), "engage": True}, time.monotonic() + timeout)
+
+    def ping(self, timeout: float = 0.5) -> float:
+        """One E-stop check-in round trip (s): a harmless command for link figures."""
+        t = time.perf_counter()
+        self._checkin(time.monotonic() + timeout)
+        return time.perf_counter() - t
+
+    def add_state_listener(self, fn: Callable[[BodyState], None]) -> None:
+        """Call `fn(state)` on zenoh's thread for every state received (keep it short)."""
+        self._listeners.append(fn)
 
     @property
     def link_lost(self) -> str | None:
@@ -322,6 +334,10 @@ class ZenohBody(Body):
             if c and c["status"] in _TERMINAL and c["id"] not in self._results:
                 self._remember(c["id"], {"status": c["status"], "reason": c.get("reason"), "pose": m["pose"]})
             self._cond.notify_all()
+        if self._listeners:
+            st = self.state()
+            for fn in self._listeners:
+                fn(st)
 
     def _on_feedback(self, sample) -> None:
         try:
