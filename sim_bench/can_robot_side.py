@@ -257,7 +257,7 @@ class CanRobotSide:
 
     def _ign_status(self) -> tuple:
         b = self.board
-        return (int(b.armed), int(b.flame_on), int(b.igniting), int(b.fault is not None), round(b.fuel * 200) / 2,
+        return (int(b.armed), int(b.flame_on), int(b.igniting), int(b.fault is not None), round(b.fuel * 10000) / 100,
                 IGN_FAULT_CODES.get(b.fault, 0), IGN_EVENT_CODES.get(b.event, 0), b.rejected & 0xFF)
 
     def _send_ign_status(self) -> None:

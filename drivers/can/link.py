@@ -64,7 +64,7 @@ class CanLink(can.Listener):
         self.peer_seen = threading.Event()
         self._closed = False
         self.bus = open_bus(bus_cfg)
-        self.notifier = can.Notifier(self.bus, [self])
+        self.notifier = can.Notifier(self.bus, [self], timeout=0.05)  # bounds stop() time
         self._thread = threading.Thread(target=self._run, name=f"canlink-{own_heartbeat}", daemon=True)
         self._thread.start()
 

@@ -1,0 +1,158 @@
+"""The igniter contract, run against the in-process SimIgniterDriver and the real CanIgniter
+talking to the wire-level igniter-board sim over python-can `virtual`. Same tests, same
+expectations; the board's own state (`board.flame_on`) is the ground truth for "flame off"."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import pytest
+
+from drivers.interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost
+from sim_bench.sim_igniter import IgniterBoard, SimIgniterDriver
+
+
+@dataclass
+class Rig:
+    ign: Igniter
+    board: IgniterBoard
+    now: Callable[[], float]  # the driver's clock (simulated in process, monotonic on the wire)
+    lose_link: Callable[[], None]
+    settle: Callable[[], None]
+
+
+@pytest.fixture(params=["inprocess", "can"])
+def rig(request):
+    if request.param == "inprocess":
+        drv = SimIgniterDriver()
+
+        def lose() -> None:
+            drv.hooks.link_lost = True
+
+        yield Rig(drv, drv.board, drv.clock.now, lose, lambda: None)
+        drv.close()
+        return
+    from sim_bench.can_rig import CanBench
+
+    bench = CanBench(with_arm=False, heartbeat_timeout=0.2)
+    rs = bench.robot_side
+
+    def lose() -> None:
+        rs.faults.bus_off = True
+        time.sleep(0.3)  # > heartbeat consumer timeout
+
+    try:
+        yield Rig(bench.igniter, rs.board, time.monotonic, lose, lambda: time.sleep(0.03))
+    finally:
+        bench.close()
+
+
+ALWAYS = lambda: True  # noqa: E731
+
+
+def test_state_at_rest(rig):
+    st = rig.ign.state()
+    assert isinstance(st, IgniterState)
+    assert not st.armed and not st.flame_on and st.fault is None and st.fuel == pytest.approx(1.0)
+
+
+def test_ignite_refused_when_not_armed(rig):
+    r = rig.ign.ignite(0.2, ALWAYS, timeout=1.0)
+    assert not r.ok and r.reason == "not_armed" and r.extra["flame_s"] == 0.0
+    assert not rig.board.flame_on and not rig.board.valve_open
+
+
+def test_arm_ignite_hold_then_off(rig):
+    rig.ign.arm(timeout=1.0)
+    assert rig.ign.state().armed
+    r = rig.ign.ignite(0.3, ALWAYS, timeout=2.0)
+    assert r.ok, r
+    assert 0.3 <= r.extra["flame_s"] < 0.45
+    assert not rig.board.flame_on and not rig.board.valve_open  # off when ignite() returns
+    rig.settle()
+    st = rig.ign.state()
+    assert st.armed and not st.flame_on and st.fault is None and st.fuel < 1.0
+
+
+def test_permit_false_never_lights(rig):
+    rig.ign.arm(timeout=1.0)
+    r = rig.ign.ignite(0.3, lambda: False, timeout=1.0)
+    assert not r.ok and r.reason == "permit_denied"
+    assert not rig.board.valve_open and rig.board.flame_off_at is None
+
+
+def test_permit_drop_extinguishes(rig):
+    rig.ign.arm(timeout=1.0)
+    t_drop = rig.now() + 0.3  # after the flame is lit (light delay 0.12 s)
+    r = rig.ign.ignite(1.0, lambda: rig.now() < t_drop, timeout=2.0)
+    assert not r.ok and r.reason == "permit_dropped"
+    assert 0.0 < r.extra["flame_s"] < 1.0
+    assert not rig.board.flame_on and not rig.board.valve_open
+    assert rig.board.flame_off_at - t_drop < 0.05  # off within 50 ms of the permit dropping
+
+
+def test_ignition_failure_latches_until_reset(rig):
+    rig.board.hooks.fail_to_light = True
+    rig.ign.arm(timeout=1.0)
+    r = rig.ign.ignite(0.3, ALWAYS, timeout=2.0)
+    assert not r.ok and r.reason == "ignition_failed" and r.extra["flame_s"] == 0.0
+    assert not rig.board.valve_open
+    rig.settle()
+    assert rig.ign.state().fault == "ignition_failed" and not rig.ign.state().armed
+    with pytest.raises(IgniterFault):
+        rig.ign.arm(timeout=1.0)
+    rig.board.hooks.fail_to_light = False
+    rig.ign.reset_fault(timeout=1.0)
+    rig.ign.arm(timeout=1.0)
+    assert rig.ign.ignite(0.2, ALWAYS, timeout=2.0).ok
+
+
+def test_flame_out_mid_hold(rig):
+    rig.board.hooks.flame_out_after = 0.1
+    rig.ign.arm(timeout=1.0)
+    r = rig.ign.ignite(0.5, ALWAYS, timeout=2.0)
+    assert not r.ok and r.reason == "flame_out"
+    assert 0.05 < r.extra["flame_s"] < 0.3
+    assert not rig.board.flame_on
+
+
+def test_fuel_runs_out(rig):
+    rig.board.fuel = 0.1 / 600.0  # 0.1 s of flame left
+    rig.ign.arm(timeout=1.0)
+    r = rig.ign.ignite(0.5, ALWAYS, timeout=2.0)
+    assert not r.ok and r.reason == "fuel_empty"
+    rig.settle()
+    st = rig.ign.state()
+    assert st.fault == "fuel_empty" and st.fuel == 0.0 and not st.flame_on
+
+
+def test_timeout_raises_and_flame_is_off(rig):
+    rig.ign.arm(timeout=1.0)
+    with pytest.raises(DriverTimeout):
+        rig.ign.ignite(1.0, ALWAYS, timeout=0.3)
+    assert not rig.board.flame_on and not rig.board.valve_open
+
+
+def test_link_loss_raises_and_flame_is_off(rig):
+    rig.ign.arm(timeout=1.0)
+    rig.lose_link()
+    with pytest.raises(LinkLost):
+        rig.ign.ignite(0.3, ALWAYS, timeout=1.0)
+    assert not rig.board.flame_on and not rig.board.valve_open
+    assert rig.ign.state().fault == "link_lost"
+
+
+def test_disarm_and_extinguish_never_raise(rig):
+    rig.ign.arm(timeout=1.0)
+    rig.ign.extinguish()
+    rig.ign.disarm()
+    rig.settle()
+    assert not rig.ign.state().armed
+    rig.ign.close()
+    rig.ign.close()
+    rig.ign.extinguish()
+    rig.ign.disarm()
+    with pytest.raises(LinkLost):
+        rig.ign.arm(timeout=1.0)
