@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import ReachabilityConfig, RobotConfig, TaskConfig
+from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
 from .errors import UserError
 from .geometry import SE2
 from .keystates import TROI
@@ -199,6 +199,11 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--gamma", type=float, default=DEFAULT_GAMMA, help="γ (the paper prints 2; 0.5 reproduces Table I)")
     ap.add_argument("--distance", choices=("euclidean", "squared"), default="euclidean", help="form of ‖ΔX‖ in d")
     ap.add_argument("--sigma", choices=("variance", "std"), default="variance", help="Σ_w = r_w·I as covariance, or σ = r_w")
+    ap.add_argument("--delta", type=float, default=TaskConfig().delta, help="δ, NSV resolution threshold in (0, 1]")
+    ap.add_argument("--eps-min", type=float, default=TaskConfig().eps_min, help="ε_min (m², EPMC)")
+    ap.add_argument("--eps-max", type=float, default=TaskConfig().eps_max, help="ε_max (m², EPMC)")
+    ap.add_argument("--radius-range", default="0.2,0.3", help="TROI radius range r_w (m): MIN,MAX")
+    ap.add_argument("--urdf", help="Z1 URDF (default: the one shipped in example-robot-data)")
     ap.add_argument("--tiebreak", choices=("first", "uniform", "nearest"), default="uniform", help="planner (a) among equal stops")
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
@@ -207,8 +212,8 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _core_for(task: TaskConfig, progress: bool) -> PlanningCore:
-    robot = RobotModel(RobotConfig())
+def _core_for(task: TaskConfig, progress: bool, urdf: str | None = None) -> PlanningCore:
+    robot = RobotModel(RobotConfig(arm=ArmConfig(urdf=urdf)) if urdf else RobotConfig())
     rc = ReachabilityConfig()
 
     def say(msg: str) -> None:
@@ -238,13 +243,22 @@ def main(argv: list[str]) -> int:
         raise UserError(f"--lengths: not a list of numbers: {a.lengths!r}") from e
     if any(L <= 0 for L in lengths):
         raise UserError(f"--lengths must be positive, got {a.lengths}")
-    spec = BenchSpec(trials=a.trials, seed=a.seed, planners=planners, lengths=lengths, span=a.span)
+    try:
+        r_range = tuple(float(x) for x in a.radius_range.split(","))
+    except ValueError as e:
+        raise UserError(f"--radius-range: expected MIN,MAX in metres, got {a.radius_range!r}") from e
+    if len(r_range) != 2 or not 0 < r_range[0] <= r_range[1]:
+        raise UserError(f"--radius-range: need 0 < MIN ≤ MAX, got {a.radius_range!r}")
+    spec = BenchSpec(trials=a.trials, seed=a.seed, planners=planners, lengths=lengths, span=a.span, r_range=r_range)  # type: ignore[arg-type]
+    task_kw = dict(delta=a.delta, eps_min=a.eps_min, eps_max=a.eps_max)
     opts = PlannerOptions(tiebreak=a.tiebreak)
     progress = not a.quiet and sys.stderr.isatty()
     if a.readings:
-        return _readings(spec, opts, a.workers, a.json, progress)
-    task = TaskConfig(gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma)
-    core = _core_for(task, not a.quiet)
+        return _readings(spec, opts, a.workers, a.json, progress, task_kw, a.urdf)
+    task = build(TaskConfig, "task", gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma, **task_kw)
+    core = _core_for(task, not a.quiet, a.urdf)
+    for r in r_range:
+        core.ro(r)  # a radius outside the mapped range is a user error, raised before the run
     t0 = time.perf_counter()
     res = run_bench(core, spec, opts, a.workers, progress)
     wall = time.perf_counter() - t0
@@ -265,16 +279,16 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _readings(spec: BenchSpec, opts: PlannerOptions, workers: int, json_path: str | None, progress: bool) -> int:
+def _readings(spec: BenchSpec, opts: PlannerOptions, workers: int, json_path: str | None, progress: bool, task_kw: dict, urdf: str | None) -> int:
     """Every reading of the ambiguities (docs/bench.md), each with its RMSE against Table I."""
     out = []
     for distance in ("euclidean", "squared"):
         for gamma in (2.0, 0.5):
             for sigma in ("variance", "std"):
                 for span in ("midpoint", "random"):
-                    task = TaskConfig(gamma=gamma, distance_form=distance, sigma_reading=sigma)
-                    core = _core_for(task, False)
-                    sp = BenchSpec(spec.trials, spec.seed, spec.planners, spec.lengths, span)
+                    task = build(TaskConfig, "task", gamma=gamma, distance_form=distance, sigma_reading=sigma, **task_kw)
+                    core = _core_for(task, False, urdf)
+                    sp = BenchSpec(spec.trials, spec.seed, spec.planners, spec.lengths, span, spec.workspace, spec.r_range)
                     res = run_bench(core, sp, opts, workers, progress)
                     row = {
                         "distance": distance,

@@ -146,3 +146,19 @@ class ReachabilityConfig(_Frozen):
     troi_radius_step: float = Field(0.01, gt=0.0, description="TROI radius bin of R_o (m)")
     troi_radius_max: float = Field(0.5, gt=0.0, description="largest TROI radius R_o is built for (m)")
     cache_dir: str | None = Field(None, description="map cache; default $XDG_CACHE_HOME/capm-field or ~/.cache/capm-field")
+
+
+def build(model: type[BaseModel], where: str = "", **values):
+    """Instantiate a config model; a validation error becomes one UserError line naming the field."""
+    from pydantic import ValidationError
+
+    from .errors import UserError
+
+    try:
+        return model(**values)
+    except ValidationError as e:
+        err = e.errors()[0]
+        loc = ".".join(str(x) for x in err.get("loc", ())) or where
+        prefix = f"{where}.{loc}" if where and loc != where else loc
+        got = f" (got {err['input']!r})" if "input" in err and not isinstance(err["input"], dict) else ""
+        raise UserError(f"{prefix or model.__name__}: {err['msg']}{got}") from e

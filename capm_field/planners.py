@@ -111,7 +111,7 @@ class BasePlanner:
             c0 = 1.0 + g * energy.travel(P - S, task)
             cl, _ = via_cost(P, E, X, rm, task)
             if not use_p:
-                return c0 + cl, {"c0": c0, "cl": cl, "cu": np.full_like(c0, np.nan), "p": np.zeros_like(c0)}
+                return c0 + cl, {"c0": c0, "cl": cl, "p": np.zeros_like(c0)}
             p = p_closed_form(rho, sigma, rm)
             cu = 1.0 + g * energy.travel(E - P, task)
             return c0 + p * cu + (1 - p) * cl, {"c0": c0, "cl": cl, "cu": cu, "p": p}

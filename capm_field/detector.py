@@ -1,0 +1,462 @@
+"""Weed-centre detector: the MPOI X̄_w (biological centre) of a plant in an arm-camera close-up.
+
+Classical pipeline, no learned weights, all sizes relative to the plant or the image:
+  1. validate the frame (dtype, shape, exposure) → reason "bad_image" instead of raising;
+  2. excess-green minus excess-red index ExG−ExR on brightness-normalised chromaticities,
+     thresholded by Otsu clamped to a fixed band (so bare soil stays empty), with hysteresis;
+  3. connected components inside the projected TROI ellipse R^TROI_I (optional `roi`), grouped
+     into plants (a gap smaller than the group's size joins it: clover leaflets, broken blades);
+     the most central/largest plant wins, a close runner-up lowers confidence or gives "ambiguous";
+  4. centre: on a plant-normalised grid (~96 px across the plant) leaf tips are the local maxima of
+     geodesic distance inside the plant; the biological centre is the point minimising the sum of
+     geodesic distances to all tips (the "tree median": where leaves and stems converge). Each
+     leaf counts once whatever its size, so long leaves do not drag the centre as they drag the
+     mask centroid. Gaps (thin petioles lost in segmentation) may be crossed at a higher cost.
+The pixel returned follows the camera module's convention (pixel centres at integer coordinates);
+`capm_field.camera.PinholeCamera.pixel_to_ground` maps it to the field (H⁻¹).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, Union
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+from .camera import PinholeCamera
+
+Reason = Literal["no_plant", "ambiguous", "cut_by_border", "bad_image"]
+
+WORK_PX = 320  # stage 1 (find the plant): longest side of the search window after downscaling
+PLANT_PX = 96  # stage 2 (find its centre): plant bounding box resampled to about this size
+ROI_MARGIN = 1.15  # leaves may overhang the TROI; the centre must lie inside it
+GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Result of `detect_centre`.
+
+    pixel: (u, v) of the biological centre when reason is None or "ambiguous" (best guess),
+    else None. confidence in [0, 1]. reason: None on success, else "no_plant", "ambiguous",
+    "cut_by_border" or "bad_image". Act on `pixel` only when `reason is None`.
+    """
+
+    pixel: tuple[float, float] | None
+    confidence: float
+    reason: Reason | None = None
+
+
+@dataclass(frozen=True)
+class Roi:
+    """Projected TROI R^TROI_I as an image conic: pixels p = (u, v, 1) with pᵀ·C·p ≤ 0 are inside.
+
+    `conic` is normalised so the ellipse centre gives a negative value. `ellipse()` returns the
+    same region as OpenCV's ((cu, cv), (full width, full height), angle in degrees).
+    """
+
+    conic: np.ndarray
+
+    @classmethod
+    def from_conic(cls, C: np.ndarray) -> "Roi":
+        C = np.asarray(C, float).reshape(3, 3)
+        C = 0.5 * (C + C.T)
+        M = C[:2, :2]
+        if not np.all(np.isfinite(C)) or np.linalg.det(M) <= 0:
+            raise ValueError("conic is not a real ellipse")
+        c = -np.linalg.solve(M, C[:2, 2])
+        val = np.r_[c, 1.0] @ C @ np.r_[c, 1.0]
+        if val == 0:
+            raise ValueError("degenerate conic")
+        if val > 0:
+            C = -C
+        if (np.r_[c, 1.0] @ C @ np.r_[c, 1.0]) >= 0:
+            raise ValueError("conic has no interior")
+        return cls(C)
+
+    @classmethod
+    def from_ellipse(cls, centre: tuple[float, float], semi_axes: tuple[float, float], angle_deg: float = 0.0) -> "Roi":
+        """Ellipse with centre (u, v), semi-axes (a, b) in pixels, a along `angle_deg` from the u axis."""
+        a, b = float(semi_axes[0]), float(semi_axes[1])
+        if not (a > 0 and b > 0):
+            raise ValueError("semi-axes must be positive")
+        t = math.radians(angle_deg)
+        R = np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])
+        M = R @ np.diag([1 / a**2, 1 / b**2]) @ R.T
+        c = np.asarray(centre, float)
+        C = np.zeros((3, 3))
+        C[:2, :2] = M
+        C[:2, 2] = C[2, :2] = -M @ c
+        C[2, 2] = c @ M @ c - 1
+        return cls(C)
+
+    def params(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """(centre (2,), semi-axes (2,), angle of the first axis in degrees)."""
+        M = self.conic[:2, :2]
+        c = -np.linalg.solve(M, self.conic[:2, 2])
+        k = -(np.r_[c, 1.0] @ self.conic @ np.r_[c, 1.0])
+        evals, evecs = np.linalg.eigh(M / k)
+        axes = 1 / np.sqrt(evals)
+        ang = math.degrees(math.atan2(evecs[1, 0], evecs[0, 0]))
+        return c, axes, ang
+
+    def ellipse(self) -> tuple[tuple[float, float], tuple[float, float], float]:
+        c, ax, ang = self.params()
+        return (float(c[0]), float(c[1])), (float(2 * ax[0]), float(2 * ax[1])), ang
+
+    def contains(self, uv: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """Whether pixels (N, 2) lie inside the ellipse grown about its centre by `scale`."""
+        c, _, _ = self.params()
+        uv = np.atleast_2d(np.asarray(uv, float))
+        q = c + (uv - c) / scale
+        ph = np.c_[q, np.ones(len(q))]
+        return np.einsum("ni,ij,nj->n", ph, self.conic, ph) <= 0
+
+
+RoiLike = Union[Roi, np.ndarray, tuple, None]
+
+
+def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, radius: float) -> Roi:
+    """R^TROI_I: the image of the TROI ground disc (centre X_w, radius r_w) seen from T_field_cam."""
+    C = camera.disc_conic(np.asarray(T_field_cam, float), np.asarray(centre_xy, float), np.asarray(radius, float))
+    return Roi.from_conic(C)
+
+
+def ground_centre(camera: PinholeCamera, T_field_cam: np.ndarray, det: Detection) -> np.ndarray | None:
+    """MPOI X̄_w on the ground (x, y) from a detection, via H⁻¹; None without a pixel."""
+    if det.pixel is None:
+        return None
+    g = camera.pixel_to_ground(T_field_cam, np.asarray(det.pixel, float)[None])[0]
+    return g if np.all(np.isfinite(g)) else None
+
+
+# ---- entry point --------------------------------------------------------------------------------
+def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None) -> Detection:
+    """Find the biological centre of the main plant in a BGR uint8 image (never raises).
+
+    roi: None (whole image), a `Roi`, a 3×3 image conic (pᵀCp ≤ 0 inside) or an OpenCV-style
+    ellipse ((cu, cv), (width, height), angle_deg). A malformed roi gives "bad_image".
+    """
+    try:
+        return _detect(image_bgr, roi)
+    except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
+        return Detection(None, 0.0, "bad_image")
+
+
+def _as_roi(roi: RoiLike) -> Roi | None:
+    if roi is None or isinstance(roi, Roi):
+        return roi
+    if isinstance(roi, np.ndarray) and roi.shape == (3, 3):
+        return Roi.from_conic(roi)
+    (cu, cv_), (w, h), ang = roi
+    return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
+
+
+def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
+    bad = Detection(None, 0.0, "bad_image")
+    if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        return bad
+    H, W = img.shape[:2]
+    if H < 16 or W < 16:
+        return bad
+    try:
+        roi = _as_roi(roi_in)
+    except Exception:  # noqa: BLE001
+        return bad
+
+    # ---- search window (ROI bounding box grown by the margin) and stage-1 downscale
+    if roi is not None:
+        c, ax, ang = roi.params()
+        t = math.radians(ang)
+        ex = ROI_MARGIN * math.hypot(ax[0] * math.cos(t), ax[1] * math.sin(t))
+        ey = ROI_MARGIN * math.hypot(ax[0] * math.sin(t), ax[1] * math.cos(t))
+        x0, y0 = max(int(math.floor(c[0] - ex)), 0), max(int(math.floor(c[1] - ey)), 0)
+        x1, y1 = min(int(math.ceil(c[0] + ex)) + 1, W), min(int(math.ceil(c[1] + ey)) + 1, H)
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            return bad
+    else:
+        x0, y0, x1, y1 = 0, 0, W, H
+    crop = img[y0:y1, x0:x1]
+    s = max(1.0, max(crop.shape[:2]) / WORK_PX)
+    if s > 1.0:
+        small = cv2.resize(crop, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))), interpolation=cv2.INTER_AREA)
+    else:
+        small = crop
+    sx, sy = crop.shape[1] / small.shape[1], crop.shape[0] / small.shape[0]
+
+    # ---- exposure sanity on the window
+    gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
+    mean, std = cv2.meanStdDev(gray)
+    sat = float(np.count_nonzero(small.max(axis=2) >= 250)) / gray.size
+    if mean[0, 0] < 12 or sat > 0.6 or std[0, 0] < 1.5 or mean[0, 0] > 245:
+        return bad
+
+    # window pixel (i, j) of `small` ↔ full image (x0 + (j + 0.5)·sx − 0.5, y0 + (i + 0.5)·sy − 0.5)
+    def to_full(p: np.ndarray) -> np.ndarray:
+        return np.array([x0 + (p[0] + 0.5) * sx - 0.5, y0 + (p[1] + 0.5) * sy - 0.5])
+
+    inside = np.ones(gray.shape, bool)
+    if roi is not None:
+        jj, ii = np.meshgrid(np.arange(small.shape[1]), np.arange(small.shape[0]))
+        full = np.c_[x0 + (jj.ravel() + 0.5) * sx - 0.5, y0 + (ii.ravel() + 0.5) * sy - 0.5]
+        inside = roi.contains(full, ROI_MARGIN).reshape(gray.shape)
+        if inside.sum() < 16:
+            return bad
+
+    # ---- vegetation mask
+    vi = vegetation_index(small)
+    vi = cv2.GaussianBlur(vi, (0, 0), 0.8)
+    thr, contrast = _threshold(vi[inside])
+    mask = _hysteresis(vi, thr, inside)
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    min_area = max(6.0, 1.5e-4 * inside.sum())
+    comps = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area]
+    if not comps:
+        return Detection(None, 0.0, "no_plant")
+
+    # ---- plants: group components, score by size and centrality
+    if roi is not None:
+        rc, rax, _ = roi.params()
+        cen_s = np.array([(rc[0] - x0 + 0.5) / sx - 0.5, (rc[1] - y0 + 0.5) / sy - 0.5])
+        rad_s = float(np.sqrt(rax[0] * rax[1]) / math.sqrt(sx * sy))
+    else:
+        cen_s = np.array([(small.shape[1] - 1) / 2, (small.shape[0] - 1) / 2])
+        rad_s = 0.5 * math.hypot(*small.shape[:2])
+    groups = _group(lab, stats, comps)
+    scored = []
+    for g in groups:
+        gm = np.isin(lab, g)
+        area = float(sum(stats[k, cv2.CC_STAT_AREA] for k in g))
+        ys, xs = np.nonzero(gm)
+        d = math.hypot(xs.mean() - cen_s[0], ys.mean() - cen_s[1]) / rad_s
+        scored.append((area * math.exp(-0.5 * (d / 0.6) ** 2), gm, area))
+    scored.sort(key=lambda t: -t[0])
+    best_score, gmask, area = scored[0]
+    if area < min_area * 1.5:
+        return Detection(None, 0.0, "no_plant")
+    runner = scored[1][0] / best_score if len(scored) > 1 else 0.0
+
+    # ---- stage 2: centre on a plant-normalised grid from the full-resolution crop
+    ys, xs = np.nonzero(gmask)
+    bx0, bx1 = to_full(np.array([xs.min() - 0.5, 0]))[0], to_full(np.array([xs.max() + 0.5, 0]))[0]
+    by0, by1 = to_full(np.array([0, ys.min() - 0.5]))[1], to_full(np.array([0, ys.max() + 0.5]))[1]
+    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, roi)
+    if centre is None:
+        return Detection(None, 0.0, "no_plant")
+
+    # ---- border, ambiguity, confidence
+    size = max(bx1 - bx0, by1 - by0)
+    border_d = min(centre[0] + 0.5, centre[1] + 0.5, W - 0.5 - centre[0], H - 0.5 - centre[1])
+    touches = bx0 <= 1 or by0 <= 1 or bx1 >= W - 2 or by1 >= H - 2
+    if touches and border_d < 0.15 * size:
+        return Detection(None, 0.1, "cut_by_border")
+    conf = min(1.0, contrast / 0.25) * (0.6 + 0.4 * min(1.0, tips / 3)) * (1 - 0.7 * runner) * (0.7 + 0.3 * sharp)
+    if touches:
+        conf *= 0.8
+    if roi is not None and not roi.contains(centre[None], 1.0)[0]:
+        conf *= 0.6
+    pix = (float(centre[0]), float(centre[1]))
+    if runner > 0.8:
+        return Detection(pix, float(np.clip(conf, 0, 0.3)), "ambiguous")
+    return Detection(pix, float(np.clip(conf, 0.0, 1.0)))
+
+
+# ---- pieces ------------------------------------------------------------------------------------
+def vegetation_index(bgr: np.ndarray) -> np.ndarray:
+    """ExG − ExR = 3g − 2.4r − b on chromaticities; dark pixels damped (they carry no colour)."""
+    f = bgr.astype(np.float32)
+    b, g, r = cv2.split(f)
+    s = b + g + r + 30.0  # the offset keeps sensor noise in shadows from looking green
+    return (3.0 * g - 2.4 * r - b) / s
+
+
+def _threshold(v: np.ndarray) -> tuple[float, float]:
+    """Otsu threshold on the index, clamped to [0.06, 0.25]; and the plant/soil contrast."""
+    v = v.ravel()
+    lo, hi = float(np.percentile(v, 1)), float(np.percentile(v, 99.9))
+    if hi - lo < 1e-6:
+        return 0.25, 0.0
+    q = np.clip((v - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
+    t, _ = cv2.threshold(q.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    thr = float(np.clip(lo + t / 255 * (hi - lo), 0.06, 0.25))
+    above = v[v > thr]
+    below = v[v <= thr]
+    contrast = float(np.median(above) - np.median(below)) if len(above) and len(below) else 0.0
+    return thr, contrast
+
+
+def _hysteresis(vi: np.ndarray, thr: float, inside: np.ndarray) -> np.ndarray:
+    """Pixels above 0.6·thr connected to a pixel above thr (keeps thin stems and leaf margins)."""
+    strong = (vi > thr) & inside
+    strong = cv2.morphologyEx(strong.astype(np.uint8), cv2.MORPH_OPEN, np.ones((2, 2), np.uint8)).astype(bool)
+    weak = (vi > 0.6 * thr) & inside
+    n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[np.unique(lab[strong])] = True
+    keep[0] = False
+    return keep[lab]
+
+
+def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
+    """Join components separated by a gap smaller than 0.35 × the larger one's diameter."""
+    comps = sorted(comps, key=lambda k: -stats[k, cv2.CC_STAT_AREA])
+    groups: list[list[int]] = []
+    used: set[int] = set()
+    for k in comps:
+        if k in used:
+            continue
+        g = [k]
+        used.add(k)
+        changed = True
+        while changed:
+            changed = False
+            gm = np.isin(lab, g)
+            ys, xs = np.nonzero(gm)
+            diam = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+            dist = cv2.distanceTransform((~gm).astype(np.uint8), cv2.DIST_L2, 3)
+            for m in comps:
+                if m in used or stats[m, cv2.CC_STAT_AREA] > stats[k, cv2.CC_STAT_AREA]:
+                    continue
+                if float(dist[lab == m].min()) < 0.35 * diam:
+                    g.append(m)
+                    used.add(m)
+                    changed = True
+        groups.append(g)
+    return groups
+
+
+def _centre_fullres(img: np.ndarray, box: tuple[float, float, float, float], thr: float, roi: Roi | None):
+    """Tree-median centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness)."""
+    H, W = img.shape[:2]
+    bx0, by0, bx1, by1 = box
+    m = 0.12 * max(bx1 - bx0, by1 - by0) + 2
+    X0, Y0 = max(int(math.floor(bx0 - m)), 0), max(int(math.floor(by0 - m)), 0)
+    X1, Y1 = min(int(math.ceil(bx1 + m)), W), min(int(math.ceil(by1 + m)), H)
+    crop = img[Y0:Y1, X0:X1]
+    k = PLANT_PX / max(bx1 - bx0, by1 - by0)
+    nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
+    interp = cv2.INTER_AREA if k < 1 else cv2.INTER_LINEAR
+    pc = cv2.resize(crop, (nw, nh), interpolation=interp)
+    kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
+    vi = cv2.GaussianBlur(vegetation_index(pc), (0, 0), 0.8)
+    inside = np.ones(vi.shape, bool)
+    if roi is not None:
+        jj, ii = np.meshgrid(np.arange(nw), np.arange(nh))
+        full = np.c_[X0 + (jj.ravel() + 0.5) * kx - 0.5, Y0 + (ii.ravel() + 0.5) * ky - 0.5]
+        inside = roi.contains(full, ROI_MARGIN).reshape(vi.shape)
+    mask = _hysteresis(vi, thr, inside)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return None, 0, 0.0
+    # keep the components of this plant: the largest and those within reach of it
+    big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    groups = _group(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
+    g = next(gr for gr in groups if big in gr)
+    plant = np.isin(lab, g)
+    uv, ntips, sharp = tree_median(plant)
+    if uv is None:
+        return None, 0, 0.0
+    return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp
+
+
+def tree_median(plant: np.ndarray) -> tuple[np.ndarray | None, int, float]:
+    """Point minimising Σ geodesic distance to the leaf tips of a plant mask, in mask pixels.
+
+    Returns ((x, y), number of tips, sharpness 0..1 of the minimum).
+    """
+    h, w = plant.shape
+    area = int(plant.sum())
+    if area < 3:
+        return None, 0, 0.0
+    ys, xs = np.nonzero(plant)
+    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+    # nodes: the plant plus a band around it that gaps may be crossed through, at a cost
+    band = cv2.dilate(plant.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)), iterations=max(1, int(0.04 * size)))
+    cost = np.where(plant, 1.0, np.where(band > 0, GAP_COST, np.inf))
+    G, node = _grid_graph(cost)
+    # provisional centre: deepest point of the mask (overlapping leaves are thickest at the centre)
+    dt = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 5)
+    c0 = np.unravel_index(int(np.argmax(dt)), dt.shape)
+    tips: np.ndarray = np.zeros(0, int)
+    centre_node = node[c0]
+    for _ in range(2):
+        g0 = dijkstra(G, directed=False, indices=[centre_node])[0]
+        tips = _tips(g0, node, plant, size)
+        if len(tips) == 0:
+            break
+        D = dijkstra(G, directed=False, indices=tips, limit=np.inf)
+        F = D.sum(axis=0) + 0.1 * D.max(axis=0)
+        F[~np.isfinite(F)] = np.inf
+        centre_node = int(np.argmin(F))
+    if len(tips) == 0:
+        yx = np.array(c0, float)
+        return np.array([yx[1], yx[0]]), 0, 0.0
+    flat = np.full(h * w, np.inf)
+    valid = node.ravel() >= 0
+    flat[valid] = F[node.ravel()[valid]]
+    Fm = flat.reshape(h, w)
+    iy, ix = np.unravel_index(int(np.argmin(Fm)), Fm.shape)
+    # sub-pixel: weighted mean of the near-minimum region
+    fmin = Fm[iy, ix]
+    tol = 0.02 * fmin + 1e-6
+    y0_, y1_ = max(iy - 3, 0), min(iy + 4, h)
+    x0_, x1_ = max(ix - 3, 0), min(ix + 4, w)
+    win = Fm[y0_:y1_, x0_:x1_]
+    wgt = np.clip(1 - (win - fmin) / tol, 0, None)
+    wgt[~np.isfinite(wgt)] = 0
+    gy, gx = np.mgrid[y0_:y1_, x0_:x1_]
+    cx, cy = float((wgt * gx).sum() / wgt.sum()), float((wgt * gy).sum() / wgt.sum())
+    # sharpness: how much F rises 10 % of the plant size away from the minimum
+    ring = (np.hypot(gx - ix, gy - iy) >= 2)
+    rise = float(np.nanmin(np.where(ring & np.isfinite(win), win, np.nan))) - fmin if ring.any() else 0.0
+    sharp = float(np.clip(rise / (0.02 * fmin + 1e-6), 0, 1)) if np.isfinite(rise) else 0.0
+    return np.array([cx, cy]), len(tips), sharp
+
+
+def _tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:
+    """Leaf tips: local maxima of geodesic distance from the centre, one per 0.15·size window."""
+    h, w = plant.shape
+    valid = node >= 0
+    gm = np.zeros((h, w), np.float32)
+    gm[valid] = g0[node[valid]]
+    gm[~np.isfinite(gm)] = 0
+    gm[~plant] = 0
+    r = max(2, int(0.08 * size))
+    mx = cv2.dilate(gm, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    peak = (gm >= mx) & (gm > 0.2 * gm.max()) & plant
+    ys, xs = np.nonzero(peak)
+    if len(xs) == 0:
+        return np.zeros(0, int)
+    order = np.argsort(-gm[ys, xs])
+    chosen: list[tuple[int, int]] = []
+    for i in order:
+        if all((xs[i] - x) ** 2 + (ys[i] - y) ** 2 > (1.5 * r) ** 2 for y, x in chosen):
+            chosen.append((ys[i], xs[i]))
+        if len(chosen) >= 24:
+            break
+    return np.array([node[y, x] for y, x in chosen], int)
+
+
+def _grid_graph(cost: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """8-connected grid graph over finite-cost pixels; edge weight = length × mean cost."""
+    h, w = cost.shape
+    ok = np.isfinite(cost)
+    node = -np.ones((h, w), np.int64)
+    node[ok] = np.arange(int(ok.sum()))
+    I, J, Wt = [], [], []
+    for dy, dx, L in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, math.sqrt(2)), (1, -1, math.sqrt(2))):
+        xs0, xs1 = max(0, -dx), w - max(0, dx)
+        a = node[0 : h - dy, xs0:xs1]
+        b = node[dy:h, xs0 + dx : xs1 + dx]
+        wgt = L * 0.5 * (cost[0 : h - dy, xs0:xs1] + cost[dy:h, xs0 + dx : xs1 + dx])
+        sel = (a >= 0) & (b >= 0)
+        I.append(a[sel])
+        J.append(b[sel])
+        Wt.append(wgt[sel])
+    n = int(ok.sum())
+    G = sp.csr_matrix((np.concatenate(Wt), (np.concatenate(I), np.concatenate(J))), shape=(n, n))
+    return G, node
