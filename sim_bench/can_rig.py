@@ -5,9 +5,15 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
+import time
+
+import can
 
 from capm_field.robot_model import RobotModel
+from drivers.can.codec import NODE_HOST_ARM, NODE_HOST_IGN, Encoder, Receiver
 from drivers.can.config import CanArmConfig, CanBusConfig, CanIgniterConfig, HeartbeatConfig
+from drivers.can.link import open_bus
 from drivers.can_arm import CanArm
 from drivers.can_igniter import CanIgniter
 
@@ -57,3 +63,64 @@ class CanBench:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class RawHost(can.Listener):
+    """A bare host node without an adapter: sends exactly the frames it is told to (to play a
+    frozen host, a replaying or corrupting sender) and records the igniter/arm status frames."""
+
+    def __init__(self, bus_cfg: CanBusConfig, heartbeat_period: float | None = 0.1) -> None:
+        self.enc = Encoder()
+        self.rx = Receiver({"IGN_STATUS", "ARM_STATUS"})
+        self._cv = threading.Condition()
+        self.ign_status: dict | None = None
+        self.ign_status_t = 0.0
+        self._hb_stop = threading.Event()
+        self.bus = open_bus(bus_cfg)
+        self.notifier = can.Notifier(self.bus, [self], timeout=0.05)
+        self._hb_thread = None
+        if heartbeat_period:
+            self._hb_thread = threading.Thread(target=self._beat, args=(heartbeat_period,), daemon=True)
+            self._hb_thread.start()
+
+    def _beat(self, period: float) -> None:
+        while not self._hb_stop.is_set():
+            self.send(self.enc.heartbeat("HB_HOST_IGN", NODE_HOST_IGN, period))
+            self.send(self.enc.heartbeat("HB_HOST_ARM", NODE_HOST_ARM, period))
+            self._hb_stop.wait(period)
+
+    def stop_heartbeat(self) -> None:
+        self._hb_stop.set()
+        if self._hb_thread is not None:
+            self._hb_thread.join(1.0)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        got = self.rx.accept(msg)
+        if got and got[0] == "IGN_STATUS":
+            with self._cv:
+                self.ign_status, self.ign_status_t = got[1], time.monotonic()
+                self._cv.notify_all()
+
+    def send(self, msg: can.Message) -> float:
+        self.bus.send(msg)
+        return time.monotonic()
+
+    def ign(self, cmd: int, counter: int | None = None) -> float:
+        """Send one IGN_CMD; returns the monotonic time right after sending."""
+        return self.send(self.enc.encode("IGN_CMD", {"Command": cmd}, counter=counter))
+
+    def wait_ign(self, pred, timeout: float) -> float | None:
+        """Wait for an IGN_STATUS satisfying pred; returns its receive time or None."""
+        end = time.monotonic() + timeout
+        with self._cv:
+            while self.ign_status is None or not pred(self.ign_status):
+                left = end - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cv.wait(left)
+            return self.ign_status_t
+
+    def close(self) -> None:
+        self.stop_heartbeat()
+        self.notifier.stop(timeout=1.0)
+        self.bus.shutdown()
