@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from typing import Callable
 import numpy as np
 
 from capm_field.config import BodyConfig
@@ -81,6 +82,8 @@ class SimBody:
         self._fail_after: tuple[float, str] | None = None
         self._slip: SE2 | None = None
         self._walked_s = 0.0  # time spent walking in the current move
+        self._events: list[tuple[int, int, Callable[[], None]]] = []  # (t_ns, order, fn), sorted
+        self._in_step = False
 
     # ---- commands ----------------------------------------------------------------------------
     def start_move(self, goal: SE2, cmd_id: int, timeout_s: float | None = None) -> None:
@@ -154,6 +157,13 @@ class SimBody:
                 self.stop("power_off")
             self.powered = on
 
+    def schedule(self, delay_s: float, fn: Callable[[], None]) -> None:
+        """Run `fn` (e.g. `press_estop`) when simulated time reaches now + `delay_s`, from the
+        stepping itself: faults land mid-move, deterministically, on either clock."""
+        with self._lock:
+            self._events.append((self._t + int(delay_s * 1e9), len(self._events), fn))
+            self._events.sort(key=lambda e: e[:2])
+
     def freeze(self, frozen: bool = True) -> None:
         """Stop responding (drivers and the wire server honour it); the physics keeps its state."""
         self.frozen = frozen
@@ -162,11 +172,19 @@ class SimBody:
     def step_to(self, t_ns: int) -> None:
         """Integrate up to simulated time `t_ns` in fixed substeps."""
         with self._lock:
-            while self._t < t_ns:
-                dt_ns = min(_SUBSTEP_NS, t_ns - self._t)
-                self._t += dt_ns
-                if self._goal is not None:
-                    self._integrate(dt_ns * 1e-9)
+            if self._in_step:  # a scheduled event calling back into a hook
+                return
+            self._in_step = True
+            try:
+                while self._t < t_ns:
+                    dt_ns = min(_SUBSTEP_NS, t_ns - self._t)
+                    self._t += dt_ns
+                    if self._goal is not None:
+                        self._integrate(dt_ns * 1e-9)
+                    while self._events and self._events[0][0] <= self._t:
+                        self._events.pop(0)[2]()
+            finally:
+                self._in_step = False
 
     def _integrate(self, dt: float) -> None:
         cfg, goal, p = self.config, self._goal, self._pose

@@ -5,6 +5,7 @@ mission executive cannot tell them apart."""
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -26,13 +27,20 @@ class Harness:
     body: Body
     sim: SimBody
     settle: Callable[[], None]  # let the state reach the driver (a no-op in process)
+    later: Callable[[float, Callable[[], None]], None]  # call from elsewhere after a delay (sim or real s)
+
+
+def _timer(delay: float, fn: Callable[[], None]) -> None:
+    t = threading.Timer(delay, fn)
+    t.daemon = True
+    t.start()
 
 
 @pytest.fixture(params=["inprocess", "zenoh"])
 def harness(request):
     if request.param == "inprocess":
         drv = SimBodyDriver(SimBody(config=FAST, seed=3))
-        yield Harness(drv, drv.sim, lambda: None)
+        yield Harness(drv, drv.sim, lambda: None, drv.sim.schedule)
         drv.close()
         return
     from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
@@ -42,7 +50,7 @@ def harness(request):
     try:
         body = ZenohBody(ZenohBodyConfig.loopback(port, "contract"))
         try:
-            yield Harness(body, bench.sim, lambda: time.sleep(0.05))
+            yield Harness(body, bench.sim, lambda: time.sleep(0.05), _timer)
         finally:
             body.close()
     finally:
@@ -107,6 +115,21 @@ def test_estop_refuses_motion_until_released(harness):
     harness.settle()
     assert not harness.body.state().estop
     assert harness.body.move_to(SE2(0.3, 0.0, 0.0), timeout=10.0).ok
+
+
+def test_estop_during_a_move_raises_and_stops(harness):
+    harness.sim.schedule(0.2, harness.sim.press_estop)
+    with pytest.raises(EStopActive):
+        harness.body.move_to(SE2(2.0, 0.0, 0.0), timeout=10.0)
+    harness.settle()
+    st = harness.body.state()
+    assert st.estop and not st.moving and 0.0 < st.pose.x < 1.0
+
+
+def test_stop_from_another_thread_ends_the_move(harness):
+    harness.later(0.2, harness.body.stop)  # as the executive would, from another thread
+    r = harness.body.move_to(SE2(2.0, 0.0, 0.0), timeout=10.0)
+    assert not r.ok and r.reason == "stop_requested"
 
 
 def test_not_powered_is_a_failed_result(harness):
