@@ -289,3 +289,20 @@ def test_clean_shutdown_no_hang_at_exit(port):
 def test_no_robot_side_is_a_clear_link_lost(port):
     with pytest.raises(LinkLost, match="no robot side"):
         ZenohBody(ZenohBodyConfig.loopback(port, RID, connect_timeout_s=0.3))
+
+
+def test_frozen_sim_hook_is_link_lost_by_state_stall(port):
+    # The in-process freeze hook (no answers, no state, TCP open) as the fault-injection layer will use it.
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST) as bench:
+        body = ZenohBody(ZenohBodyConfig.loopback(port, RID, state_stale_s=0.2))
+        try:
+            mv = _move_in_thread(body, SE2(5.0, 0.0, 0.0), 30.0)
+            assert wait_for(lambda: body.state().moving, 2.0)
+            t0 = time.monotonic()
+            bench.sim.freeze()
+            mv["thread"].join(2.0)
+            assert isinstance(mv.get("error"), LinkLost) and "stalled" in str(mv["error"])
+            assert mv["t"] - t0 < 0.4
+        finally:
+            body.close()
+            bench.sim.freeze(False)
