@@ -1,0 +1,463 @@
+"""The run log: one MCAP file per run, written with foxglove-sdk, readable after a crash.
+
+Foxglove schemas where one fits (FrameTransforms, CompressedImage, CameraCalibration, Log),
+the Z1 URDF as a ROS 2 `std_msgs/String` (cdr) on /robot_description so Rerun and Foxglove
+draw the arm, and protobuf messages with their FileDescriptorSet embedded for the rest
+(`mission.runlog_schema`). Topics, schemas, frames and rates: docs/log.md.
+
+Crash safety (SIGKILL, power cut of the process): foxglove-sdk's MCAP writer buffers messages
+in an open chunk; `MCAPWriter.flush()` closes that chunk and writes it to the OS. A background
+thread calls it every `flush_period_s` when something was logged, so after a kill everything
+older than ~flush_period_s (+ the time one flush takes) is in complete, CRC-checked chunks that
+a streaming MCAP reader (no footer/summary needed) returns; see `mission.runlog_read`.
+No fsync: a kernel crash or power loss of the computer can still lose the page cache.
+"""
+
+from __future__ import annotations
+
+import atexit
+import math
+import struct
+import threading
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import cv2
+import foxglove
+import numpy as np
+from foxglove import Channel, Context, Schema
+from foxglove.channels import CameraCalibrationChannel, CompressedImageChannel, FrameTransformsChannel, LogChannel
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+from foxglove.messages import (
+    CameraCalibration,
+    CompressedImage,
+    FrameTransform,
+    FrameTransforms,
+    Log,
+    LogLevel,
+    Quaternion,
+    Timestamp,
+    Vector3,
+)
+
+from capm_field.camera import PinholeCamera
+from capm_field.errors import UserError
+from capm_field.geometry import SE2
+from capm_field.keystates import TROI, KeyState, Plan
+from capm_field.robot_model import RobotModel
+
+from . import runlog_schema as S
+
+# Topic names (docs/log.md lists them all; tests check the two agree).
+TOPICS = {
+    "tf": "/tf",
+    "image": "/camera/image",
+    "calibration": "/camera/calibration",
+    "log": "/log",
+    "robot_description": "/robot_description",
+    "plan": "/plan",
+    "key_state": "/key_state",
+    "detection": "/detection",
+    "regions": "/regions",
+    "energy": "/energy",
+    "igniter": "/igniter/state",
+    "truth_mpoi": "/truth/mpoi",
+}
+_PROTO_TOPICS = {
+    "plan": "Plan",
+    "key_state": "KeyState",
+    "detection": "Detection",
+    "regions": "Regions",
+    "energy": "Energy",
+    "igniter": "IgniterStatus",
+    "truth_mpoi": "TruthMpoi",
+}
+FIELD, BODY, ARM_BASE, CAMERA, NOZZLE = "field", "body", "arm_base", "camera", "nozzle"
+
+_LEVELS = {
+    "debug": LogLevel.Debug,
+    "info": LogLevel.Info,
+    "warning": LogLevel.Warning,
+    "error": LogLevel.Error,
+    "fatal": LogLevel.Fatal,
+}
+_ROS2_STRING = Schema(name="std_msgs/msg/String", encoding="ros2msg", data=b"string data")
+
+
+def urdf_tree(urdf_text: str) -> dict[str, str]:
+    """child link -> parent link, from the URDF's joints."""
+    root = ET.fromstring(urdf_text)
+    return {j.find("child").get("link"): j.find("parent").get("link") for j in root.iter("joint") if j.find("child") is not None}
+
+
+def cdr_string(text: str) -> bytes:
+    """A ROS 2 std_msgs/String in CDR (little-endian encapsulation, NUL-terminated string)."""
+    b = text.encode("utf-8") + b"\x00"
+    return b"\x00\x01\x00\x00" + struct.pack("<I", len(b)) + b
+
+
+def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix (Shepperd's method, numerically safe branch)."""
+    t = R[0, 0] + R[1, 1] + R[2, 2]
+    if t > 0:
+        s = 2.0 * math.sqrt(t + 1.0)
+        return ((R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s)
+    i = int(np.argmax(np.diag(R)))
+    j, k = (i + 1) % 3, (i + 2) % 3
+    s = 2.0 * math.sqrt(max(1.0 + R[i, i] - R[j, j] - R[k, k], 1e-300))
+    q = [0.0, 0.0, 0.0, 0.0]
+    q[i] = 0.25 * s
+    q[j] = (R[j, i] + R[i, j]) / s
+    q[k] = (R[k, i] + R[i, k]) / s
+    q[3] = (R[k, j] - R[j, k]) / s
+    return (q[0], q[1], q[2], q[3])
+
+
+def _ts(t_ns: int) -> Timestamp:
+    return Timestamp(int(t_ns) // 1_000_000_000, int(t_ns) % 1_000_000_000)
+
+
+class RunLog:
+    """Writes one run to `path` (MCAP). Thread-safe; every method takes the event time `t_ns`.
+
+    `t_ns` becomes both the MCAP log_time and the messages' `timestamp`. Use one clock for the
+    whole run (the executive's); Rerun shows it as a duration when it is small (monotonic or sim
+    clock) and as a date when it is a UNIX time.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        robot: RobotModel,
+        camera: PinholeCamera,
+        *,
+        bench: bool,
+        flush_period_s: float = 0.5,
+        overwrite: bool = False,
+        jpeg_quality: int = 85,
+        chunk_size: int = 256 * 1024,
+        metadata: dict[str, str] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.robot = robot
+        self.camera = camera
+        self.bench = bench
+        self.flush_period_s = float(flush_period_s)
+        self.jpeg_quality = int(jpeg_quality)
+        self._lock = threading.Lock()
+        self._closed = False
+        self._dirty = False
+        self._static_written = False
+        self.n_flushes = 0
+        self.call_time_s = 0.0  # wall time spent inside RunLog calls (the logging cost)
+
+        if self.path.exists() and not overwrite:
+            raise UserError(f"run log already exists: {self.path} (choose another --out directory)")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        # A private context: our channels never leak into another sink (e.g. a live server).
+        self._ctx = Context()
+        options = MCAPWriteOptions(
+            compression=MCAPCompression.Zstd,
+            chunk_size=chunk_size,
+            compression_threads=0,  # 2 shared cores: no compressor thread pool
+        )
+        self._writer = foxglove.open_mcap(self.path, allow_overwrite=overwrite, context=self._ctx, writer_options=options)
+        ctx = self._ctx
+        self._tf = FrameTransformsChannel(TOPICS["tf"], context=ctx)
+        self._image = CompressedImageChannel(TOPICS["image"], context=ctx)
+        self._calib = CameraCalibrationChannel(TOPICS["calibration"], context=ctx)
+        self._log = LogChannel(TOPICS["log"], context=ctx)
+        self._urdf = Channel(TOPICS["robot_description"], schema=_ROS2_STRING, message_encoding="cdr", context=ctx)
+        fds = S.descriptor_set_bytes()
+        self._proto: dict[str, Channel] = {
+            key: Channel(
+                TOPICS[key],
+                schema=Schema(name=S.full_name(msg), encoding="protobuf", data=fds),
+                message_encoding="protobuf",
+                context=ctx,
+            )
+            for key, msg in _PROTO_TOPICS.items()
+        }
+        meta = {"bench": str(bool(bench)).lower(), "urdf": robot.urdf_path.name, "created_unix_ns": str(time.time_ns())}
+        meta.update(metadata or {})
+        self._writer.write_metadata("capm_run", meta)
+
+        # Frame tree: URDF links by their URDF names (so /robot_description animates), with the
+        # URDF root hung under arm_base, and camera/nozzle on the flange link.
+        self._urdf_text = robot.urdf_path.read_text()
+        parents = urdf_tree(self._urdf_text)
+        fk0 = robot.fk(np.zeros(robot.model.nq))
+        roots = {p for p in parents.values() if p not in parents}
+        self._links = [(ARM_BASE, r) for r in sorted(roots) if r in fk0]
+        self._links += [(p, c) for c, p in parents.items() if c in fk0 and p in fk0]
+        flange = robot.model.frames[robot.flange_id].name
+        self._links += [(flange, CAMERA), (flange, NOZZLE)]
+        self._T_body_base = robot.T_body_base.copy()
+        self._height = robot.cfg.body.operating_height
+
+        K = np.asarray(camera.K, dtype=float)
+        P = np.c_[K, np.zeros(3)]
+        self._calib_args = dict(
+            frame_id=CAMERA,
+            width=int(camera.width),
+            height=int(camera.height),
+            distortion_model="plumb_bob",
+            D=[0.0] * 5,
+            K=[float(v) for v in K.ravel()],
+            R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            P=[float(v) for v in P.ravel()],
+        )
+
+        self._stop = threading.Event()
+        self._flusher = threading.Thread(target=self._flush_loop, name="runlog-flush", daemon=True)
+        self._flusher.start()
+        atexit.register(self.close)  # normal exit, uncaught exception or KeyboardInterrupt
+
+    # ---- plumbing ----------------------------------------------------------------------------
+    def __enter__(self) -> "RunLog":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _flush_loop(self) -> None:
+        while not self._stop.wait(self.flush_period_s):
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the open chunk and hand it to the OS (what the background thread does)."""
+        with self._lock:
+            if self._closed or not self._dirty:
+                return
+            self._writer.flush()
+            self._dirty = False
+            self.n_flushes += 1
+
+    def _emit(self, t_ns: int, fn) -> None:
+        t0 = time.perf_counter()
+        with self._lock:
+            if self._closed:
+                return
+            if not self._static_written:
+                self._write_static(t_ns)
+            fn()
+            self._dirty = True
+        self.call_time_s += time.perf_counter() - t0
+
+    def _write_static(self, t_ns: int) -> None:
+        # Written at the first message's time so the timeline starts with the run, not at 0.
+        self._urdf.log(cdr_string(self._urdf_text), log_time=t_ns)
+        self._calib.log(CameraCalibration(timestamp=_ts(t_ns), **self._calib_args), log_time=t_ns)
+        self._static_written = True
+
+    def _proto_msg(self, key: str, t_ns: int, **fields):
+        m = S.message_class(_PROTO_TOPICS[key])(**fields)
+        m.timestamp.FromNanoseconds(int(t_ns))
+        return m
+
+    def _log_proto(self, key: str, t_ns: int, msg) -> None:
+        data = msg.SerializeToString()
+        self._emit(t_ns, lambda: self._proto[key].log(data, log_time=int(t_ns)))
+
+    def close(self) -> None:
+        """Finalise the file (summary, footer). Idempotent; also runs at interpreter exit."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._stop.set()
+        if self._flusher is not threading.current_thread():
+            self._flusher.join(timeout=5.0)
+        self._writer.close()
+        atexit.unregister(self.close)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # ---- Foxglove-schema topics ----------------------------------------------------------------
+    def transforms(self, t_ns: int, body: SE2, q: np.ndarray) -> None:
+        """FrameTransforms: field→body→arm_base→URDF links→camera / nozzle, all in one message."""
+        t0 = time.perf_counter()
+        poses = self.robot.fk(np.asarray(q, dtype=float))
+        poses[ARM_BASE] = np.eye(4)
+        ts = _ts(t_ns)
+        tfs = [
+            _frame_transform(ts, FIELD, BODY, body.matrix(self._height)),
+            _frame_transform(ts, BODY, ARM_BASE, self._T_body_base),
+        ]
+        for parent, child in self._links:
+            Tp, Tc = poses[parent], poses[child]
+            tfs.append(_frame_transform(ts, parent, child, _relative(Tp, Tc)))
+        msg = FrameTransforms(transforms=tfs)
+        self.call_time_s += time.perf_counter() - t0
+        self._emit(t_ns, lambda: self._tf.log(msg, log_time=int(t_ns)))
+
+    def image(self, t_ns: int, bgr: np.ndarray, target_id: str) -> None:
+        """CompressedImage (JPEG) in frame `camera`, plus CameraCalibration for Pinhole in Rerun."""
+        t0 = time.perf_counter()
+        ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        if not ok:
+            raise ValueError(f"cannot JPEG-encode an image of shape {np.shape(bgr)}")
+        ts = _ts(t_ns)
+        img = CompressedImage(timestamp=ts, frame_id=CAMERA, data=buf.tobytes(), format="jpeg")
+        cal = CameraCalibration(timestamp=ts, **self._calib_args)
+        h, w = np.shape(bgr)[:2]
+        note = Log(timestamp=ts, level=LogLevel.Debug, message=f"image target={target_id} {w}x{h}", name="camera")
+        self.call_time_s += time.perf_counter() - t0
+
+        def write() -> None:
+            self._image.log(img, log_time=int(t_ns))
+            self._calib.log(cal, log_time=int(t_ns))
+            self._log.log(note, log_time=int(t_ns))
+
+        self._emit(t_ns, write)
+
+    def event(self, t_ns: int, level: str, message: str, **fields) -> None:
+        """A foxglove Log line; `fields` are appended as `key=value` (name: optional `name=`)."""
+        if level not in _LEVELS:
+            raise ValueError(f"event level {level!r}: choose from {', '.join(_LEVELS)}")
+        name = str(fields.pop("name", "mission"))
+        text = message + "".join(f" {k}={v}" for k, v in fields.items())
+        msg = Log(timestamp=_ts(t_ns), level=_LEVELS[level], message=text, name=name)
+        self._emit(t_ns, lambda: self._log.log(msg, log_time=int(t_ns)))
+
+    # ---- protobuf topics -------------------------------------------------------------------------
+    def key_state(self, t_ns: int, target_id: str, planner: str, ks: KeyState, note: str = "") -> None:
+        m = self._proto_msg("key_state", t_ns, target_id=target_id, planner=planner, note=note)
+        _fill_key_state(m, ks)
+        self._log_proto("key_state", t_ns, m)
+
+    def plan(self, t_ns: int, target_id: str, plan: Plan) -> None:
+        m = self._proto_msg(
+            "plan", t_ns, target_id=target_id, planner=plan.planner, p_upper=float(plan.p_upper),
+            expected_cost=float(plan.expected_cost), frame_id=FIELD,
+        )
+        _fill_troi(m.troi, plan.troi)
+        _fill_pose(m.start, plan.start)
+        _fill_pose(m.end, plan.end)
+        if plan.fallback_k3 is not None:
+            _fill_pose(m.fallback_k3, plan.fallback_k3)
+        for ks in plan.key_states:
+            k = m.key_states.add(target_id=target_id, planner=plan.planner)
+            k.timestamp.CopyFrom(m.timestamp)
+            _fill_key_state(k, ks)
+        for name, value in plan.terms.items():
+            try:
+                m.terms.add(name=str(name), value=float(value))
+            except (TypeError, ValueError):
+                continue  # non-numeric terms are planner internals; not part of the log contract
+        self._log_proto("plan", t_ns, m)
+
+    def detection(
+        self,
+        t_ns: int,
+        target_id: str,
+        pixel: tuple[float, float] | None,
+        confidence: float,
+        reason: str | None,
+        mpoi_field: tuple[float, float] | None,
+    ) -> None:
+        m = self._proto_msg(
+            "detection", t_ns, target_id=target_id, found=pixel is not None, confidence=float(confidence),
+            reason=reason or "", frame_id=FIELD,
+        )
+        if pixel is not None:
+            m.pixel.x, m.pixel.y = float(pixel[0]), float(pixel[1])
+        if mpoi_field is not None:
+            m.mpoi_field.x, m.mpoi_field.y = float(mpoi_field[0]), float(mpoi_field[1])
+        self._log_proto("detection", t_ns, m)
+
+    def regions(
+        self,
+        t_ns: int,
+        target_id: str,
+        troi: TROI,
+        ro: list[tuple[float, float]],
+        rm: list[tuple[float, float]],
+        mpoi: tuple[float, float] | None,
+    ) -> None:
+        """R_o annuli (r_inner, r_outer) around X_w and R_m annuli around the MPOI, field frame."""
+        m = self._proto_msg("regions", t_ns, target_id=target_id, frame_id=FIELD)
+        _fill_troi(m.troi, troi)
+        for a, b in ro:
+            m.ro.add(r_inner=float(a), r_outer=float(b))
+        for a, b in rm:
+            m.rm.add(r_inner=float(a), r_outer=float(b))
+        if mpoi is not None:
+            m.mpoi.x, m.mpoi.y = float(mpoi[0]), float(mpoi[1])
+        self._log_proto("regions", t_ns, m)
+
+    def energy(self, t_ns: int, total: float, target_id: str, target_energy: float, body_moves: int) -> None:
+        m = self._proto_msg(
+            "energy", t_ns, total=float(total), target_id=target_id, target_energy=float(target_energy), body_moves=int(body_moves)
+        )
+        self._log_proto("energy", t_ns, m)
+
+    def igniter(
+        self,
+        t_ns: int,
+        flame_on: bool,
+        armed: bool,
+        fuel: float,
+        fault: str | None,
+        interlock_ok: bool,
+        interlock_reasons: list[str],
+        body_stationary: bool,
+        epmc_ok: bool,
+        estop: bool,
+    ) -> None:
+        m = self._proto_msg(
+            "igniter", t_ns, flame_on=bool(flame_on), armed=bool(armed), fuel=float(fuel), fault=fault or "",
+            interlock_ok=bool(interlock_ok), interlock_reasons=[str(r) for r in interlock_reasons],
+            body_stationary=bool(body_stationary), epmc_ok=bool(epmc_ok), estop=bool(estop),
+        )
+        self._log_proto("igniter", t_ns, m)
+
+    def truth_mpoi(self, t_ns: int, target_id: str, xy: tuple[float, float]) -> None:
+        """Bench only: the simulated MPOI. Ignored on hardware (there is no ground truth)."""
+        if not self.bench:
+            return
+        m = self._proto_msg("truth_mpoi", t_ns, target_id=target_id, frame_id=FIELD)
+        m.mpoi.x, m.mpoi.y = float(xy[0]), float(xy[1])
+        self._log_proto("truth_mpoi", t_ns, m)
+
+
+# ---- helpers ---------------------------------------------------------------------------------
+def _relative(T_parent: np.ndarray, T_child: np.ndarray) -> np.ndarray:
+    R = T_parent[:3, :3]
+    out = np.eye(4)
+    out[:3, :3] = R.T @ T_child[:3, :3]
+    out[:3, 3] = R.T @ (T_child[:3, 3] - T_parent[:3, 3])
+    return out
+
+
+def _frame_transform(ts: Timestamp, parent: str, child: str, T: np.ndarray) -> FrameTransform:
+    x, y, z, w = quaternion(T[:3, :3])
+    t = T[:3, 3]
+    return FrameTransform(
+        timestamp=ts,
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2])),
+        rotation=Quaternion(x=x, y=y, z=z, w=w),
+    )
+
+
+def _fill_pose(m, p: SE2) -> None:
+    m.x, m.y, m.yaw = float(p.x), float(p.y), float(p.yaw)
+
+
+def _fill_troi(m, troi: TROI) -> None:
+    m.id, m.x, m.y, m.r = str(troi.id), float(troi.x), float(troi.y), float(troi.r)
+
+
+def _fill_key_state(m, ks: KeyState) -> None:
+    m.label = ks.label
+    _fill_pose(m.body, ks.body)
+    m.arm = ks.arm or ""
+    if ks.target is not None:
+        m.target.x, m.target.y = float(ks.target[0]), float(ks.target[1])
+    m.radius = float(ks.radius or 0.0)
+    m.frame_id = FIELD

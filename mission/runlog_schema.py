@@ -1,0 +1,159 @@
+"""Protobuf schemas of the run log's custom messages, built at runtime from descriptors.
+
+Why descriptors in Python instead of a `.proto` file: compiling a `.proto` at runtime needs
+protoc or grpcio-tools (not dependencies), and checked-in generated `_pb2.py` code drifts from
+its source. Building the `FileDescriptorProto` here gives one source of truth that both
+serialises the messages and is embedded, as a `FileDescriptorSet`, in the MCAP schema records,
+so Foxglove, Rerun and `mcap-protobuf-support` decode the log without any project code.
+
+All messages live in one file `capm_field/runlog.proto`, package `capm.log`; times are
+`google.protobuf.Timestamp` (named `timestamp`, like the Foxglove schemas). Optional values
+are sub-messages (proto3 gives message fields presence): an unset `pixel` means "no detection".
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
+
+PACKAGE = "capm.log"
+FILE_NAME = "capm_field/runlog.proto"
+
+_T = descriptor_pb2.FieldDescriptorProto
+_SCALARS = {
+    "double": _T.TYPE_DOUBLE,
+    "bool": _T.TYPE_BOOL,
+    "string": _T.TYPE_STRING,
+    "uint32": _T.TYPE_UINT32,
+}
+
+# message name -> [(field name, type, repeated)]; a type not in _SCALARS is a message name.
+MESSAGES: dict[str, list[tuple[str, str, bool]]] = {
+    "Point2": [("x", "double", False), ("y", "double", False)],
+    "Pose2": [("x", "double", False), ("y", "double", False), ("yaw", "double", False)],
+    "Troi": [("id", "string", False), ("x", "double", False), ("y", "double", False), ("r", "double", False)],
+    "Annulus": [("r_inner", "double", False), ("r_outer", "double", False)],
+    "Term": [("name", "string", False), ("value", "double", False)],
+    "KeyState": [
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("target_id", "string", False),
+        ("planner", "string", False),
+        ("label", "string", False),  # x_k0 | x_b,k1 | x_e,k2 | x_b,k3 | x_e,k3 | x_kmax
+        ("body", "Pose2", False),  # field frame
+        ("arm", "string", False),  # "" (body state) | observe | flame
+        ("target", "Point2", False),  # field frame; unset when the key state has none
+        ("radius", "double", False),  # r_w for observe, 0 otherwise
+        ("note", "string", False),
+        ("frame_id", "string", False),
+    ],
+    "Plan": [
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("target_id", "string", False),
+        ("planner", "string", False),
+        ("troi", "Troi", False),
+        ("start", "Pose2", False),
+        ("end", "Pose2", False),
+        ("key_states", "KeyState", True),
+        ("p_upper", "double", False),  # p(x_b,k1)
+        ("expected_cost", "double", False),  # c0 + p·cu + (1-p)·cl
+        ("fallback_k3", "Pose2", False),
+        ("terms", "Term", True),
+        ("frame_id", "string", False),
+    ],
+    "Detection": [
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("target_id", "string", False),
+        ("found", "bool", False),
+        ("pixel", "Point2", False),  # (u, v) in /camera/image; unset when not found
+        ("confidence", "double", False),
+        ("reason", "string", False),  # why not found / rejected; "" otherwise
+        ("mpoi_field", "Point2", False),  # MPOI on the ground, field frame
+        ("frame_id", "string", False),
+    ],
+    "Regions": [
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("target_id", "string", False),
+        ("troi", "Troi", False),
+        ("ro", "Annulus", True),  # R_o: annuli around X_w
+        ("mpoi", "Point2", False),
+        ("rm", "Annulus", True),  # R_m: annuli around the MPOI
+        ("frame_id", "string", False),
+    ],
+    "Energy": [
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("total", "double", False),
+        ("target_id", "string", False),
+        ("target_energy", "double", False),
+        ("body_moves", "uint32", False),
+    ],
+    "IgniterStatus": [
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("flame_on", "bool", False),
+        ("armed", "bool", False),
+        ("fuel", "double", False),  # remaining, 0..1
+        ("fault", "string", False),
+        ("interlock_ok", "bool", False),
+        ("interlock_reasons", "string", True),
+        ("body_stationary", "bool", False),
+        ("epmc_ok", "bool", False),
+        ("estop", "bool", False),
+    ],
+    "TruthMpoi": [
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("target_id", "string", False),
+        ("mpoi", "Point2", False),
+        ("frame_id", "string", False),
+    ],
+}
+
+# Messages that are published on a topic (the rest are building blocks).
+TOP_LEVEL = ("KeyState", "Plan", "Detection", "Regions", "Energy", "IgniterStatus", "TruthMpoi")
+
+
+def file_descriptor() -> descriptor_pb2.FileDescriptorProto:
+    fd = descriptor_pb2.FileDescriptorProto(name=FILE_NAME, package=PACKAGE, syntax="proto3")
+    fd.dependency.append(timestamp_pb2.DESCRIPTOR.name)
+    for name, fields in MESSAGES.items():
+        m = fd.message_type.add(name=name)
+        for number, (fname, ftype, repeated) in enumerate(fields, start=1):
+            f = m.field.add(name=fname, number=number, json_name=_camel(fname))
+            f.label = _T.LABEL_REPEATED if repeated else _T.LABEL_OPTIONAL
+            if ftype in _SCALARS:
+                f.type = _SCALARS[ftype]
+            else:
+                f.type = _T.TYPE_MESSAGE
+                f.type_name = ftype if ftype.startswith(".") else f".{PACKAGE}.{ftype}"
+    return fd
+
+
+def _camel(s: str) -> str:
+    head, *rest = s.split("_")
+    return head + "".join(w.title() for w in rest)
+
+
+@cache
+def descriptor_set_bytes() -> bytes:
+    """FileDescriptorSet (ours + timestamp.proto) — the `data` of every custom schema record."""
+    ts = descriptor_pb2.FileDescriptorProto()
+    timestamp_pb2.DESCRIPTOR.CopyToProto(ts)
+    return descriptor_pb2.FileDescriptorSet(file=[ts, file_descriptor()]).SerializeToString()
+
+
+@cache
+def _pool() -> descriptor_pool.DescriptorPool:
+    # A private pool: no clash with anything registered in the default pool.
+    pool = descriptor_pool.DescriptorPool()
+    for fd in descriptor_pb2.FileDescriptorSet.FromString(descriptor_set_bytes()).file:
+        pool.Add(fd)
+    return pool
+
+
+@cache
+def message_class(name: str) -> type:
+    """Python class of message `name` (e.g. "IgniterStatus")."""
+    return message_factory.GetMessageClass(_pool().FindMessageTypeByName(f"{PACKAGE}.{name}"))
+
+
+def full_name(name: str) -> str:
+    return f"{PACKAGE}.{name}"
