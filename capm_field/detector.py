@@ -191,7 +191,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
     # ---- exposure sanity on the window
     gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
     mean, std = cv2.meanStdDev(gray)
-    sat = float(np.count_nonzero(small.max(axis=2) >= 250)) / gray.size
+    sat = float(np.count_nonzero(small.min(axis=2) >= 250)) / gray.size  # clipped to white
     if mean[0, 0] < 12 or sat > 0.6 or std[0, 0] < 1.5 or mean[0, 0] > 245:
         return bad
 

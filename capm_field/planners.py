@@ -53,8 +53,11 @@ class PlanningCore:
         self.maps = maps
         self.task = task
         self.regions = Regions(robot, maps)
-        # Plan inside the maps with a margin of a quarter bin so planned stops are not on bin edges.
+        # Plan inside the maps so planned stops are not on bin edges: a quarter bin for R_m, and
+        # 1.5 bins for R_o, whose inner edge (view rays grazing the body) is the least sharp
+        # and whose map is looked up at the nearest mapped TROI radius.
         self.margin = 0.25 * maps.manip.step
+        self.margin_o = 1.5 * maps.manip.step
         self.rm: RadialSet = maps.manip.radial_set(None).shrink(self.margin)
         if self.rm.empty:
             raise UserError("R_m is empty: the nozzle cannot reach the ground within [ε_min, ε_max] from any pose (check robot and task)")
@@ -77,7 +80,12 @@ class PlanningCore:
         r = self.effective_radius(r_w)
         key = round(r, 4)
         if key not in self._ro_cache:
-            self._ro_cache[key] = self.maps.observe_map(r).radial_set(None).shrink(self.margin)
+            # Conservative between mapped radii: feasible for both neighbours of r_w.
+            sets = [self.maps.observe_map(x).radial_set(None) for x in self.maps.bracketing_radii(r)]
+            rs = sets[0]
+            for other in sets[1:]:
+                rs = rs.intersect(other)
+            self._ro_cache[key] = rs.shrink(self.margin_o)
         return self._ro_cache[key]
 
     def base_xy(self, body: SE2) -> np.ndarray:

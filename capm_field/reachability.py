@@ -37,7 +37,7 @@ from .config import ReachabilityConfig, RobotConfig, TaskConfig
 from .geometry import SE2, wrap_angle
 from .robot_model import RobotModel
 
-MAP_FORMAT = 3  # bump when the map semantics change: invalidates caches
+MAP_FORMAT = 4  # bump when the map semantics change: invalidates caches
 TWO_PI = 2.0 * math.pi
 _MIN_LOOK_DOWN = 0.2  # optical / flame axis must point at least this much downwards (−z component)
 
@@ -71,6 +71,15 @@ class RadialSet:
         """The set with every interval shrunk by `margin` at both ends (planning stays clear of
         the map's bin edges); intervals that vanish are dropped."""
         return RadialSet(tuple((a + margin, b - margin) for a, b in self.intervals if b - a > 2 * margin))
+
+    def intersect(self, other: "RadialSet") -> "RadialSet":
+        out = []
+        for a, b in self.intervals:
+            for c, d in other.intervals:
+                lo, hi = max(a, c), min(b, d)
+                if hi > lo:
+                    out.append((lo, hi))
+        return RadialSet(tuple(sorted(out)))
 
     def clamp(self, r: float) -> float:
         """Nearest radius inside the set."""
@@ -163,6 +172,13 @@ class ReachabilityMaps:
     key: str
     build_s: float
     samples: dict
+
+    def bracketing_radii(self, r_w: float) -> tuple[float, ...]:
+        """The mapped TROI radii just below and above r_w (one if r_w is on the grid)."""
+        i = int(np.searchsorted(self.troi_radii, r_w - 1e-9))
+        lo = self.troi_radii[max(i - 1, 0)] if self.troi_radii[min(i, len(self.troi_radii) - 1)] > r_w + 1e-9 else self.troi_radii[min(i, len(self.troi_radii) - 1)]
+        hi = self.troi_radii[min(i, len(self.troi_radii) - 1)]
+        return tuple(sorted({float(lo), float(hi)}))
 
     def observe_map(self, r_w: float) -> PolarMap:
         """The R_o map for TROI radius r_w (nearest built radius; r_w outside the range is an error)."""
@@ -311,7 +327,6 @@ def _observe_samples(robot: RobotModel, task: TaskConfig, rc: ReachabilityConfig
     cam = PinholeCamera.from_config(robot.cfg.camera)
     Q = _joint_grid(robot, tuple(max(2, int(round(n * 0.75))) for n in rc.joint_steps), rc.roll_steps)
     r_max = rc.troi_radius_max
-    dirs = np.stack([np.cos(np.linspace(0, TWO_PI, 8, endpoint=False)), np.sin(np.linspace(0, TWO_PI, 8, endpoint=False))], 1)
     out = []
     for i in range(0, len(Q), chunk):
         q = Q[i : i + chunk]
@@ -329,10 +344,7 @@ def _observe_samples(robot: RobotModel, task: TaskConfig, rc: ReachabilityConfig
 
         def covered(r: np.ndarray) -> np.ndarray:
             cov, _ = cam.disc_view(Tg, gxy, r)
-            pts = gxy[:, None, :] + r[:, None, None] * dirs[None]
-            pts3 = np.concatenate([pts, np.full(pts.shape[:2] + (1,), -h)], axis=2)
-            blocked = robot.segment_blocked(np.broadcast_to(c[:, None, :], pts3.shape), pts3).any(axis=1)
-            return cov & ~blocked
+            return cov & ~robot.disc_occluded(c, g, r)
 
         def area(r: np.ndarray) -> np.ndarray:
             return cam.disc_view(Tg, gxy, r)[1]

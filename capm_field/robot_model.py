@@ -203,6 +203,18 @@ class RobotModel:
         closest = axy + ts[..., None] * dxy
         return (tlo <= thi) & (np.hypot(closest[..., 0], closest[..., 1]) < bc.keepout_radius)
 
+    RING_POINTS = 16  # boundary samples of a TROI disc for the view-occlusion test
+
+    def disc_occluded(self, cam_base: np.ndarray, centre_base: np.ndarray, r: np.ndarray | float) -> np.ndarray:
+        """Whether any view ray from camera position(s) (…, 3) to the boundary of the ground disc
+        (centre (…, 3) on the ground, radius r), all in the arm-base frame, passes through the body."""
+        ang = np.linspace(0.0, 2 * np.pi, self.RING_POINTS, endpoint=False)
+        ring = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], axis=1)  # (k, 3)
+        centre = np.asarray(centre_base, dtype=float)[..., None, :]
+        pts = centre + np.asarray(r, dtype=float)[..., None, None] * ring
+        cam = np.broadcast_to(np.asarray(cam_base, dtype=float)[..., None, :], pts.shape)
+        return self.segment_blocked(cam, pts).any(axis=-1)
+
     def config_valid(self, q: np.ndarray) -> bool:
         """Joint limits hold and no arm point enters the keep-out volume or the ground."""
         q = np.asarray(q, dtype=float)

@@ -1,0 +1,264 @@
+"""Mission file: one YAML document → a validated `Mission` (pydantic), or every problem at once.
+
+Each problem is reported as `FILE:LINE: key.path: message`, using the YAML node marks, and the
+loader raises `MissionError` (exit 2, nothing started, nothing written). Unknown keys are errors.
+TROIs are listed under `field.trois` or loaded from a prescan file (`field.prescan`: CSV with
+columns x,y,r[,id] or GeoJSON Points with a `radius`/`r` property, field-frame metres).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from capm_field.config import RobotConfig, TaskConfig
+from capm_field.errors import UserError
+from capm_field.geometry import SE2
+from capm_field.keystates import TROI
+
+PLANNER_NAMES = ("a", "b", "c")
+
+
+class MissionError(UserError):
+    """A mission file problem; `problems` holds one line per problem."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = problems
+        super().__init__("\n".join(problems) if len(problems) > 1 else problems[0])
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Pose(_Strict):
+    x: float
+    y: float
+    yaw: float = 0.0
+
+    def se2(self) -> SE2:
+        return SE2(self.x, self.y, self.yaw)
+
+
+class TroiSpec(_Strict):
+    id: str | None = None
+    x: float
+    y: float
+    r: float = Field(gt=0.0, le=0.5, description="TROI radius r_w (m)")
+
+
+class FieldSpec(_Strict):
+    trois: list[TroiSpec] = Field(default_factory=list)
+    prescan: str | None = Field(None, description="CSV or GeoJSON file of TROI centres and radii")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "FieldSpec":
+        if self.trois and self.prescan:
+            raise ValueError("give either trois or prescan, not both")
+        return self
+
+
+class FaultSpec(_Strict):
+    """One scheduled fault (bench): `kind` at target index `target` (or time `at_s`)."""
+
+    kind: str
+    target: int | None = Field(None, ge=0)
+    at_s: float | None = Field(None, ge=0.0)
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class BenchDrivers(_Strict):
+    kind: Literal["bench"]
+    seed: int = 0
+    transport: Literal["inprocess", "wire"] = Field("inprocess", description="in-process sim, or real adapters over loopback")
+    faults: list[FaultSpec] | str = Field(default_factory=list, description="list, or 'random:SEED'")
+    mpoi_in_troi: bool = Field(True, description="true MPOIs are drawn from N(X_w, Σ_w) restricted to the TROI")
+
+
+class ZenohSpec(_Strict):
+    robot_id: str = "spot"
+    connect: list[str] = Field(default_factory=lambda: ["tcp/192.168.80.3:7447"])
+    listen: list[str] = Field(default_factory=list)
+    config_file: str | None = Field(None, description="zenoh JSON5 config (TLS, auth, ACL); overrides the fields above")
+    estop_timeout_s: float = Field(1.0, gt=0.0)
+    lease_s: float = Field(1.0, gt=0.0)
+
+
+class CanSpec(_Strict):
+    interface: str = "socketcan"
+    channel: str = "can0"
+    bitrate: int = 1_000_000
+
+
+class CameraSpec(_Strict):
+    source: str | int = 0
+
+
+class HardwareDrivers(_Strict):
+    kind: Literal["hardware"]
+    zenoh: ZenohSpec = Field(default_factory=ZenohSpec)
+    can: CanSpec = Field(default_factory=CanSpec)
+    camera: CameraSpec = Field(default_factory=CameraSpec)
+
+
+class OutputSpec(_Strict):
+    dir: str = "runs/latest"
+    images: bool = True
+
+
+class Mission(_Strict):
+    name: str = "mission"
+    robot: RobotConfig = Field(default_factory=RobotConfig)
+    task: TaskConfig = Field(default_factory=TaskConfig)
+    field: FieldSpec
+    start: Pose
+    end: Pose | None = Field(None, description="x_kmax after the last TROI; default: the start pose")
+    planner: str = "c"
+    drivers: BenchDrivers | HardwareDrivers = Field(discriminator="kind")
+    output: OutputSpec = Field(default_factory=OutputSpec)
+    timeouts: dict[str, float] = Field(default_factory=lambda: {"body": 60.0, "arm": 20.0, "camera": 5.0})
+
+    @field_validator("planner")
+    @classmethod
+    def _planner(cls, v: str) -> str:
+        if v not in PLANNER_NAMES:
+            raise ValueError(f"unknown planner {v!r}; choose from {', '.join(PLANNER_NAMES)}")
+        return v
+
+    def end_pose(self) -> SE2:
+        return (self.end or self.start).se2()
+
+
+# ---------------------------------------------------------------------------------------------
+def _line_map(text: str) -> dict[tuple, int]:
+    """Key path → 1-based line of the node, from the YAML composition tree."""
+    out: dict[tuple, int] = {}
+
+    def walk(node, path: tuple) -> None:
+        out[path] = node.start_mark.line + 1
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                key = k.value
+                out[path + (key,)] = k.start_mark.line + 1
+                walk(v, path + (key,))
+        elif isinstance(node, yaml.SequenceNode):
+            for i, v in enumerate(node.value):
+                walk(v, path + (i,))
+
+    root = yaml.compose(text, Loader=yaml.SafeLoader)
+    if root is not None:
+        walk(root, ())
+    return out
+
+
+def _line_for(lines: dict[tuple, int], loc: tuple) -> int | None:
+    loc = tuple(x for x in loc if not (isinstance(x, str) and x in ("bench", "hardware", "function-after", "function-before")))
+    while loc:
+        if loc in lines:
+            return lines[loc]
+        loc = loc[:-1]
+    return lines.get(())
+
+
+def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
+    """Parse and validate a mission file; returns the mission and its TROIs (listed or prescan)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissionError([f"{path}: mission file not found"])
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise MissionError([f"{path}: cannot read: {e}"]) from e
+    try:
+        data = yaml.safe_load(text)
+        lines = _line_map(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        raise MissionError([f"{where}: YAML syntax error: {getattr(e, 'problem', None) or e}"]) from e
+    if not isinstance(data, dict):
+        raise MissionError([f"{path}:1: the mission file must be a mapping of keys (robot, task, field, start, drivers, …)"])
+    try:
+        mission = Mission.model_validate(data)
+    except ValidationError as e:
+        problems = []
+        for err in e.errors():
+            loc = tuple(err["loc"])
+            line = _line_for(lines, loc)
+            key = ".".join(str(x) for x in loc if x not in ("bench", "hardware")) or "(top level)"
+            msg = err["msg"].removeprefix("Value error, ")
+            got = err.get("input")
+            got_s = f" (got {got!r})" if err["type"] not in ("missing",) and not isinstance(got, (dict, list)) else ""
+            problems.append(f"{path}:{line or '?'}: {key}: {msg}{got_s}")
+        raise MissionError(problems) from e
+    trois = _trois(mission, path, lines)
+    return mission, trois
+
+
+def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
+    if mission.field.prescan:
+        src = (path.parent / mission.field.prescan).resolve()
+        trois = load_prescan(src)
+    else:
+        trois = [TROI(t.x, t.y, t.r, t.id or f"T{i:02d}") for i, t in enumerate(mission.field.trois)]
+    if not trois:
+        raise MissionError([f"{path}:{_line_for(lines, ('field',)) or '?'}: field: no TROIs (list field.trois or give field.prescan)"])
+    ids = [t.id for t in trois]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise MissionError([f"{path}:{_line_for(lines, ('field',)) or '?'}: field: duplicate TROI ids {dup}"])
+    return trois
+
+
+def load_prescan(src: Path) -> list[TROI]:
+    """TROIs from a prescan file: CSV (x,y,r[,id]) or GeoJSON (Point features with radius|r)."""
+    if not src.is_file():
+        raise MissionError([f"{src}: prescan file not found"])
+    problems: list[str] = []
+    out: list[TROI] = []
+    if src.suffix.lower() == ".csv":
+        with src.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        for i, row in enumerate(rows, start=2):
+            try:
+                x, y, r = float(row["x"]), float(row["y"]), float(row["r"])
+            except (KeyError, TypeError, ValueError):
+                problems.append(f"{src}:{i}: need numeric columns x, y, r (got {row})")
+                continue
+            out.append(_checked_troi(src, i, x, y, r, row.get("id") or f"T{len(out):02d}", problems))
+    elif src.suffix.lower() in (".geojson", ".json"):
+        try:
+            doc = json.loads(src.read_text())
+        except json.JSONDecodeError as e:
+            raise MissionError([f"{src}:{e.lineno}: invalid JSON: {e.msg}"]) from e
+        feats = doc.get("features") if isinstance(doc, dict) else None
+        if not isinstance(feats, list):
+            raise MissionError([f"{src}: expected a GeoJSON FeatureCollection"])
+        for i, f in enumerate(feats):
+            geom, props = (f or {}).get("geometry") or {}, (f or {}).get("properties") or {}
+            if geom.get("type") != "Point" or len(geom.get("coordinates", [])) < 2:
+                problems.append(f"{src}: features[{i}]: need a Point geometry")
+                continue
+            r = props.get("radius", props.get("r"))
+            if not isinstance(r, (int, float)):
+                problems.append(f"{src}: features[{i}].properties: need a numeric radius (or r)")
+                continue
+            x, y = (float(c) for c in geom["coordinates"][:2])
+            out.append(_checked_troi(src, None, x, y, float(r), str(props.get("id", f"T{len(out):02d}")), problems, f"features[{i}]"))
+    else:
+        raise MissionError([f"{src}: prescan must be .csv or .geojson"])
+    if problems:
+        raise MissionError(problems)
+    return out
+
+
+def _checked_troi(src: Path, line: int | None, x: float, y: float, r: float, tid: str, problems: list[str], where: str = "") -> TROI:
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(r)) or not 0 < r <= 0.5:
+        problems.append(f"{src}:{line or '?'}: {where + ': ' if where else ''}radius must be in (0, 0.5] m and coordinates finite (got x={x}, y={y}, r={r})")
+    return TROI(x, y, r, tid)
