@@ -10,6 +10,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
+from capm_field.config import ArmConfig, RobotConfig
 from capm_field.robot_model import RobotModel
 from drivers.interfaces import Arm, ArmState, DriverTimeout, LinkLost
 from sim_bench.sim_arm import ArmPlant, SimArmDriver
@@ -20,7 +21,8 @@ Q_A = np.array([0.4, 0.9, -1.1, 0.2, 0.3, 0.1])
 
 @pytest.fixture(scope="module")
 def robot() -> RobotModel:
-    return RobotModel()
+    # a brisk arm keeps the real-time (CAN) variant short; both variants use the same limits
+    return RobotModel(RobotConfig(arm=ArmConfig(max_joint_speed=3.0)))
 
 
 @dataclass
