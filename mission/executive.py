@@ -1,0 +1,438 @@
+"""Mission executive: walks the key-state sequence of every TROI on any DriverSet (bench or robot).
+
+Per TROI (paper §III-B, Fig. 2c): plan → walk to x_b,k1 → arm to the NSV pose x_e,k2 → capture →
+detect the MPOI → branch (upper: flame from x_b,k1; lower: re-plan x_b,k3 ∈ R_m(X̄_w) and walk) →
+flame with the MTC hold ξ under the ignition interlock → stow → walk to x_kmax.
+
+Recovery: detection fails → one re-observation from an adjusted pose, then skip with a reason;
+IK or motion failure → re-plan once, then skip; link loss or E-stop → igniter off, stow if
+possible, abort (MissionAborted → exit 1). The arm is stowed before every body move
+(assumption a.2: body and arm never move together), and the igniter is extinguished before
+anything that is not flaming.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from capm_field import energy
+from capm_field.arm_poses import ArmSolution, ViewSolver, flame_solution
+from capm_field.camera import PinholeCamera
+from capm_field.geometry import SE2
+from capm_field.keystates import TROI, KeyState, Plan
+from capm_field.planners import BasePlanner, PlanningCore
+from capm_field.reachability import FlameSolver
+from drivers.interfaces import DriverError, DriverSet, EStopActive, LinkLost
+
+from .interlock import IgnitionInterlock
+from .ordering import order_trois
+
+
+class MissionAborted(RuntimeError):
+    """Link loss, E-stop or another condition under which the mission must not go on."""
+
+
+class _Skip(Exception):
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass
+class TargetResult:
+    id: str
+    troi: list[float]
+    mpoi_detected: list[float] | None = None
+    mpoi_true: list[float] | None = None
+    branch: str = "skipped"
+    flamed: bool = False
+    epmc_true: bool | None = None
+    energy: float = 0.0
+    body_moves: int = 0
+    reason: str | None = None
+    p_upper: float | None = None
+    expected_energy: float | None = None
+    flame_s: float = 0.0
+
+
+@dataclass
+class MissionResult:
+    targets: list[TargetResult]
+    total_energy: float
+    wall_s: float
+    aborted: str | None = None
+    order: list[str] = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        n = len(self.targets)
+        ok = sum(1 for t in self.targets if t.flamed and t.epmc_true is not False)
+        return ok / n if n else 0.0
+
+    def to_json(self) -> dict:
+        return {
+            "targets": [
+                {k: v for k, v in asdict(t).items() if k in ("id", "troi", "mpoi_detected", "mpoi_true", "branch", "flamed", "epmc_true", "energy", "body_moves", "reason", "p_upper", "expected_energy", "flame_s")}
+                for t in self.targets
+            ],
+            "total_energy": self.total_energy,
+            "success_rate": self.success_rate,
+            "wall_s": self.wall_s,
+            "aborted": self.aborted,
+            "order": self.order,
+        }
+
+
+class Executive:
+    def __init__(
+        self,
+        trois: list[TROI],
+        start: SE2,
+        end: SE2,
+        drivers: DriverSet,
+        core: PlanningCore,
+        planner: BasePlanner,
+        *,
+        log=None,
+        progress: Callable[[dict], None] | None = None,
+        truth: dict[str, tuple[float, float]] | None = None,
+        now_ns: Callable[[], int] = time.time_ns,
+        timeouts: dict[str, float] | None = None,
+        detector: Callable | None = None,
+    ):
+        self.trois = trois
+        self.start, self.end = start, end
+        self.d = drivers
+        self.core = core
+        self.robot = core.robot
+        self.task = core.task
+        self.planner = planner
+        self.log = log
+        self.progress = progress or (lambda _s: None)
+        self.truth = truth or {}
+        self.now_ns = now_ns
+        self.timeouts = {"body": 60.0, "arm": 20.0, "camera": 5.0, **(timeouts or {})}
+        self.view = ViewSolver(self.robot, core.maps, self.task)
+        self.flame = FlameSolver(self.robot, self.task)
+        self.camera = PinholeCamera.from_config(self.robot.cfg.camera)
+        if detector is None:
+            from capm_field.detector import detect_centre
+
+            detector = detect_centre
+        self.detect = detector
+        self.total_energy = 0.0
+        self._phase = "idle"
+
+    # ---- logging helpers -------------------------------------------------------------------
+    def _event(self, level: str, msg: str, **kw) -> None:
+        if self.log:
+            self.log.event(self.now_ns(), level, msg, **kw)
+
+    def _tf(self) -> None:
+        if self.log:
+            self.log.transforms(self.now_ns(), self.d.body.state().pose, self.d.arm.state().joints)
+
+    def _ks(self, tid: str, ks: KeyState, note: str = "") -> None:
+        if self.log:
+            self.log.key_state(self.now_ns(), tid, self.planner.name, ks, note)
+        self._event("info", f"{tid}: key state {ks.label} {note}".strip(), target=tid, key_state=ks.label)
+
+    def _set_phase(self, i: int, n: int, tid: str, phase: str) -> None:
+        self._phase = phase
+        self.progress({"index": i, "total": n, "target": tid, "phase": phase, "energy": self.total_energy})
+
+    def _igniter_state(self, il: IgnitionInterlock | None = None) -> None:
+        if not self.log:
+            return
+        g = self.d.igniter.state()
+        if il is not None:
+            st = il.check()
+            self.log.igniter(self.now_ns(), g.flame_on, g.armed, g.fuel, g.fault, st.ok, st.reasons, st.body_stationary, st.epmc_ok, st.estop)
+        else:
+            b = self.d.body.state()
+            self.log.igniter(self.now_ns(), g.flame_on, g.armed, g.fuel, g.fault, False, ["not_flaming"], not b.moving, False, b.estop)
+
+    # ---- motion primitives -----------------------------------------------------------------
+    def _safe(self) -> None:
+        """Flame off, always first."""
+        try:
+            self.d.igniter.extinguish()
+        except Exception:  # noqa: BLE001 - extinguish must never stop the safing
+            pass
+
+    def _stow(self) -> None:
+        self._safe()
+        st = self.d.arm.state()
+        if np.max(np.abs(np.asarray(st.joints) - np.asarray(self.robot.cfg.arm.stow_joints))) < 1e-2 and not st.moving:
+            return
+        r = self.d.arm.stow(self.timeouts["arm"])
+        self._tf()
+        if not r.ok:
+            raise _Skip(f"arm_stow_failed:{r.reason}")
+
+    def _walk(self, goal: SE2, forced: bool = False) -> tuple[SE2, float]:
+        """Stow, walk to `goal`; returns (arrived pose, energy of this move)."""
+        self._stow()
+        before = self.d.body.state().pose
+        self._tf()
+        r = self.d.body.move_to(goal, self.timeouts["body"])
+        after = self.d.body.state().pose
+        self._tf()
+        c = energy.cost(before, after, self.task, force_move=forced)
+        self.total_energy += c
+        if self.log:
+            self.log.energy(self.now_ns(), self.total_energy, self._tid, self._target_energy + c, self._moves + 1)
+        if not r.ok:
+            raise _Skip(f"body_motion_failed:{r.reason}")
+        return after, c
+
+    def _arm_to(self, sol: ArmSolution) -> None:
+        r = self.d.arm.move_joints(sol.q, self.timeouts["arm"])
+        self._tf()
+        if not r.ok:
+            raise _Skip(f"arm_motion_failed:{r.reason}")
+
+    # ---- per target ------------------------------------------------------------------------
+    def _observe(self, tid: str, troi: TROI, body: SE2, r_eff: float) -> np.ndarray | None:
+        """Arm to an NSV pose, capture, detect; one re-observation from an adjusted pose."""
+        for attempt in range(2):
+            sol = self.view.solve(body, troi.xy, r_eff, variant=attempt)
+            if sol is None:
+                self._event("warning", f"{tid}: no NSV arm pose from here (attempt {attempt + 1})", target=tid)
+                continue
+            self._arm_to(sol)
+            self._ks(tid, KeyState("x_e,k2", body, "observe", troi.xy, r_eff), note=f"attempt {attempt + 1}")
+            frame = self.d.camera.capture(self.timeouts["camera"])
+            st_b, st_a = self.d.body.state(), self.d.arm.state()
+            T_cam = self.robot.T_field_base(st_b.pose) @ st_a.camera_pose
+            roi = self._roi(T_cam, troi)
+            det = self.detect(frame.image, roi=roi)
+            mpoi = None
+            if det.pixel is not None:
+                g = self.camera.pixel_to_ground(T_cam, np.array([det.pixel]))[0]
+                if np.all(np.isfinite(g)):
+                    mpoi = g
+            if self.log:
+                self.log.image(self.now_ns(), frame.image, tid)
+                self.log.detection(self.now_ns(), tid, det.pixel, det.confidence, det.reason, tuple(mpoi) if mpoi is not None else None)
+            if mpoi is not None:
+                return mpoi
+            self._event("warning", f"{tid}: detection failed ({det.reason}), attempt {attempt + 1}", target=tid)
+        return None
+
+    def _roi(self, T_cam: np.ndarray, troi: TROI):
+        try:
+            from capm_field.detector import roi_from_troi
+        except ImportError:
+            return None
+        # The MPOI lies in the TROI by design; a 1.5× margin keeps plants whose centre sits on the rim.
+        return roi_from_troi(self.camera, T_cam, troi.xy, 1.5 * troi.r)
+
+    def _flame(self, tid: str, body: SE2, mpoi: np.ndarray) -> float:
+        sol = flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi))
+        if sol is None:
+            raise _Skip("no_flame_pose")
+        self._arm_to(sol)
+        self._ks(tid, KeyState("x_e,k3", body, "flame", tuple(mpoi)))
+        il = IgnitionInterlock(self.d, self.robot, self.task, (float(mpoi[0]), float(mpoi[1])))
+        il.anchor()
+        st = il.check()
+        if not st.ok:
+            self._safe()
+            raise _Skip(f"interlock:{','.join(st.reasons)}")
+        self.d.igniter.arm(self.timeouts["arm"])
+        last = [0]
+
+        def permit() -> bool:
+            s = il.check()
+            t = self.now_ns()
+            if t - last[0] > 50_000_000:  # log the igniter and interlock state at ≤ 20 Hz
+                last[0] = t
+                if self.log:
+                    g = self.d.igniter.state()
+                    self.log.igniter(t, g.flame_on, g.armed, g.fuel, g.fault, s.ok, s.reasons, s.body_stationary, s.epmc_ok, s.estop)
+            return s.ok
+
+        self._igniter_state(il)
+        try:
+            res = self.d.igniter.ignite(self.task.xi, permit, timeout=self.task.xi + 10.0)
+        finally:
+            self._safe()
+            self.d.igniter.disarm()
+            self._igniter_state(il)
+        flame_s = float(res.extra.get("flame_s", 0.0))
+        if not res.ok:
+            raise _Skip(f"flame_failed:{res.reason}")
+        self._event("info", f"{tid}: flamed {flame_s:.2f} s (ξ = {self.task.xi} s)", target=tid)
+        return flame_s
+
+    def _target(self, i: int, n: int, troi: TROI, x_kmax: SE2, res: TargetResult) -> None:
+        tid = troi.id
+        self._tid = tid
+        self._target_energy = 0.0
+        self._moves = 0
+        here = self.d.body.state().pose
+        self._set_phase(i, n, tid, "plan")
+        plan: Plan = self.planner.plan(here, x_kmax, troi)
+        res.p_upper = plan.p_upper
+        res.expected_energy = plan.expected_cost
+        if self.log:
+            self.log.plan(self.now_ns(), tid, plan)
+            self.log.regions(self.now_ns(), tid, troi, list(self.core.ro(troi.r).intervals), list(self.core.rm.intervals), None)
+        self._ks(tid, KeyState("x_k0", here))
+
+        def walk(goal: SE2, forced: bool = False) -> SE2:
+            try:
+                pose, c = self._walk(goal, forced)
+            except _Skip:
+                # Motion failure: re-plan once from where we are, then give up on this target.
+                self._event("warning", f"{tid}: body motion failed, re-trying once", target=tid)
+                pose, c = self._walk(goal, forced)
+            self._target_energy += c
+            self._moves += 1
+            return pose
+
+        self._set_phase(i, n, tid, "walk to x_b,k1")
+        x1 = walk(plan.x_b_k1)
+        self._ks(tid, KeyState("x_b,k1", x1))
+        if self.planner.name == "a":
+            mpoi = np.array(troi.xy)  # deterministic: assume X̄_w = X_w, no look
+        else:
+            self._set_phase(i, n, tid, "observe")
+            mpoi = self._observe(tid, troi, x1, self.core.effective_radius(troi.r))
+            if mpoi is None:
+                raise _Skip("detection_failed")
+        res.mpoi_detected = [float(mpoi[0]), float(mpoi[1])]
+        if self.log:
+            self.log.regions(self.now_ns(), tid, troi, list(self.core.ro(troi.r).intervals), list(self.core.rm.intervals), tuple(mpoi))
+        body = x1
+        upper = self.planner.name != "b" and bool(self.core.regions.in_R_m(x1, mpoi))
+        if upper and flame_solution(self.robot, self.flame, self.core.maps, x1, tuple(mpoi)) is None:
+            upper = False  # the map says yes but IK from the actual pose says no: reposition
+        res.branch = "upper" if upper else "lower"
+        if not upper:
+            self._set_phase(i, n, tid, "reposition x_b,k3")
+            for attempt in range(2):
+                here = self.d.body.state().pose
+                P3 = self.planner._replan_k3(self.core.base_xy(here), self.core.base_xy(x_kmax), mpoi)
+                x3 = self.core.facing(P3, mpoi)
+                self._ks(tid, KeyState("x_b,k3", x3), note="re-plan" if attempt else "")
+                body = walk(x3, forced=True)
+                if flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi)) is not None:
+                    break
+                self._event("warning", f"{tid}: no flame pose after reposition, re-planning once", target=tid)
+            else:
+                raise _Skip("no_flame_pose_after_replan")
+        self._set_phase(i, n, tid, "flame")
+        res.flame_s = self._flame(tid, body, mpoi)
+        res.flamed = True
+        self._stow()
+        if tid in self.truth:
+            tx = np.asarray(self.truth[tid])
+            nozzle = self.robot.T_field_base(self.d.body.state().pose)  # for the record only
+            del nozzle
+            res.epmc_true = bool(self._epmc_true(body, mpoi, tx))
+
+    def _epmc_true(self, body: SE2, aimed: np.ndarray, true_xy: np.ndarray) -> bool:
+        """Bench check: the flame pose used (aimed at the detected MPOI) against the true MPOI.
+
+        EPMC holds when ‖X_e − X̄_w,true‖² ∈ [ε_min, ε_max] and the flame axis passes within the
+        detection tolerance of the true centre (a flame aimed 5 cm off misses a weed's centre).
+        """
+        sol = flame_solution(self.robot, self.flame, self.core.maps, body, tuple(aimed))
+        if sol is None:
+            return False
+        X_e, axis = sol.T_field_frame[:3, 3], sol.T_field_frame[:3, 0]
+        t3 = np.array([true_xy[0], true_xy[1], 0.0])
+        d2 = float(np.sum((t3 - X_e) ** 2))
+        # distance of the true centre from the flame axis
+        v = t3 - X_e
+        off = float(np.linalg.norm(v - (v @ axis) * axis))
+        return self.task.eps_min <= d2 <= self.task.eps_max and off <= self.aim_tolerance
+
+    aim_tolerance = 0.03  # m: the flame must pass within 3 cm of the true centre
+
+    # ---- the mission -----------------------------------------------------------------------
+    def run(self) -> MissionResult:
+        t0 = time.perf_counter()
+        ordered = order_trois(self.trois, self.start.xy, self.end.xy)
+        results = [TargetResult(t.id, [t.x, t.y, t.r], mpoi_true=list(map(float, self.truth[t.id])) if t.id in self.truth else None) for t in ordered]
+        if self.log:
+            for t in ordered:
+                if t.id in self.truth:
+                    self.log.truth_mpoi(self.now_ns(), t.id, tuple(self.truth[t.id]))
+        self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
+        self._tid, self._target_energy, self._moves = "", 0.0, 0
+        aborted = None
+        try:
+            self._check_startup()
+            for i, troi in enumerate(ordered):
+                x_kmax = self._x_kmax(ordered, i)
+                res = results[i]
+                e0 = self.total_energy
+                try:
+                    self._target(i, len(ordered), troi, x_kmax, res)
+                    self._set_phase(i, len(ordered), troi.id, "walk to x_kmax")
+                    self._walk(x_kmax)
+                    self._moves += 1
+                    self._ks(troi.id, KeyState("x_kmax", self.d.body.state().pose))
+                except _Skip as s:
+                    self._safe()
+                    res.reason = s.reason
+                    if not res.flamed:
+                        res.branch = "skipped"
+                    self._event("warning", f"{troi.id}: skipped ({s.reason})", target=troi.id, reason=s.reason)
+                    try:
+                        self._stow()
+                    except _Skip:
+                        pass
+                res.energy = self.total_energy - e0
+                res.body_moves = self._moves
+        except (LinkLost, EStopActive) as e:
+            aborted = f"{type(e).__name__}: {e}"
+        except DriverError as e:
+            aborted = f"{type(e).__name__}: {e}"
+        finally:
+            self._safe()
+        if aborted:
+            self._event("error", f"mission aborted: {aborted}")
+            try:
+                self.d.body.stop()
+            except Exception:  # noqa: BLE001
+                pass
+            try:
+                self.d.arm.stow(self.timeouts["arm"])
+            except Exception:  # noqa: BLE001 - stow "if possible"
+                pass
+            for r in results:
+                if r.reason is None and not r.flamed:
+                    r.reason = "mission_aborted"
+        else:
+            try:
+                self._set_phase(len(ordered), len(ordered), "-", "done")
+            except Exception:  # noqa: BLE001
+                pass
+            self._event("info", f"mission done: energy {self.total_energy:.3f}")
+        self._igniter_state()
+        return MissionResult(results, self.total_energy, time.perf_counter() - t0, aborted, [t.id for t in ordered])
+
+    def _check_startup(self) -> None:
+        b = self.d.body.state()
+        if b.estop:
+            raise EStopActive("E-stop engaged at mission start")
+        self._safe()
+        self._stow()
+
+    def _x_kmax(self, ordered: list[TROI], i: int) -> SE2:
+        """x_kmax: midpoint towards the next TROI (paper), the user's end pose after the last."""
+        if i + 1 >= len(ordered):
+            return self.end
+        a, b = np.array(ordered[i].xy), np.array(ordered[i + 1].xy)
+        m = 0.5 * (a + b)
+        yaw = math.atan2(b[1] - a[1], b[0] - a[0])
+        return SE2(float(m[0]), float(m[1]), yaw)

@@ -1,0 +1,42 @@
+"""Visiting order of the TROIs: nearest neighbour from the start, improved by 2-opt.
+
+The tour is open (start → … → end); 2-opt reverses segments while that shortens the path
+start → T_1 → … → T_n → end measured between TROI centres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from capm_field.keystates import TROI
+
+
+def _length(pts: np.ndarray, order: list[int], start: np.ndarray, end: np.ndarray) -> float:
+    path = np.vstack([start, pts[order], end])
+    return float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
+
+
+def order_trois(trois: list[TROI], start_xy: np.ndarray, end_xy: np.ndarray, max_rounds: int = 50) -> list[TROI]:
+    if len(trois) <= 1:
+        return list(trois)
+    pts = np.array([t.xy for t in trois])
+    left = set(range(len(trois)))
+    order: list[int] = []
+    cur = np.asarray(start_xy, float)
+    while left:
+        nxt = min(left, key=lambda i: (float(np.linalg.norm(pts[i] - cur)), i))
+        order.append(nxt)
+        left.remove(nxt)
+        cur = pts[nxt]
+    best = _length(pts, order, start_xy, end_xy)
+    for _ in range(max_rounds):
+        improved = False
+        for i in range(len(order) - 1):
+            for j in range(i + 1, len(order)):
+                cand = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+                L = _length(pts, cand, start_xy, end_xy)
+                if L < best - 1e-12:
+                    order, best, improved = cand, L, True
+        if not improved:
+            break
+    return [trois[i] for i in order]

@@ -1,0 +1,93 @@
+"""The bench robot: a DriverSet of simulated body, arm, igniter and camera on one simulated clock,
+plus the world truth (the weeds' true MPOIs) — what `drivers: {kind: bench}` in a mission opens.
+
+The world: each TROI of the mission gets a weed whose biological centre (the true MPOI X̄_w) is
+drawn from the planner's prior N(X_w, Σ_w), restricted to the TROI disc when `mpoi_in_troi`
+(the paper: X̄_w ∈ R_w^TROI by design of the prescan). The camera renders that field from the
+arm's actual camera pose (body pose ⊕ arm FK), so the executive sees what the geometry says.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from capm_field.camera import PinholeCamera
+from capm_field.config import TaskConfig
+from capm_field.geometry import SE2
+from capm_field.keystates import TROI
+from capm_field.robot_model import RobotModel
+from drivers.interfaces import DriverSet
+
+from .sim_clock import SimClock
+
+
+class BenchClock(SimClock):
+    """One simulated clock for every in-process driver (body uses `advance`, arm and igniter `sleep`)."""
+
+    realtime = False
+
+    def advance(self, dt: float) -> None:
+        self.sleep(dt)
+
+
+@dataclass
+class BenchWorld:
+    clock: BenchClock
+    truth: dict[str, tuple[float, float]]
+    scene: object
+    faults: object | None = None
+
+    def close(self) -> None:  # DriverSet.extras are closed with the set
+        pass
+
+
+def sample_mpois(trois: list[TROI], task: TaskConfig, seed: int, in_troi: bool) -> dict[str, tuple[float, float]]:
+    """True MPOIs: N(X_w, Σ_w) per TROI (restricted to the TROI disc when `in_troi`)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 7919]))
+    out = {}
+    for t in trois:
+        s = task.sigma(t.r)
+        for _ in range(10_000):
+            d = rng.normal(scale=s, size=2)
+            if not in_troi or math.hypot(*d) <= t.r:
+                break
+        else:  # pragma: no cover - σ ≫ r_w would need very many draws; fall back to uniform in the disc
+            a, rr = rng.uniform(0, 2 * math.pi), t.r * math.sqrt(rng.uniform())
+            d = np.array([rr * math.cos(a), rr * math.sin(a)])
+        out[t.id] = (float(t.x + d[0]), float(t.y + d[1]))
+    return out
+
+
+def open_bench_drivers(robot: RobotModel, task: TaskConfig, trois: list[TROI], start: SE2, seed: int, mpoi_in_troi: bool = True) -> DriverSet:
+    """In-process bench DriverSet; `extras['world']` holds the clock and the truth."""
+    from .field_scene import FieldScene
+    from .sim_arm import SimArmDriver
+    from .sim_body import SimBody, SimBodyDriver
+    from .sim_camera import SimCamera
+    from .sim_igniter import SimIgniterDriver
+
+    clock = BenchClock()
+    truth = sample_mpois(trois, task, seed, mpoi_in_troi)
+    weeds = [dict(x=truth[t.id][0], y=truth[t.id][1], kind=None, troi_centre=(t.x, t.y), troi_radius=t.r) for t in trois]
+    kinds = ("rosette", "seedling", "grass", "clover")
+    rng = np.random.default_rng(seed)
+    for w in weeds:
+        w["kind"] = str(rng.choice(kinds))
+    xs = [t.x for t in trois] + [start.x]
+    ys = [t.y for t in trois] + [start.y]
+    area = (min(xs) - 1.5, min(ys) - 1.5, max(xs) + 1.5, max(ys) + 1.5)
+    scene = FieldScene.generate(seed, weeds=weeds, area=area)
+    body = SimBodyDriver(SimBody(robot.cfg.body, clock=clock, seed=seed, pose=start))
+    arm = SimArmDriver(robot, clock=clock)
+    igniter = SimIgniterDriver(clock=clock)
+    camera_model = PinholeCamera.from_config(robot.cfg.camera)
+
+    def camera_pose() -> np.ndarray:
+        return robot.T_field_base(body.state().pose) @ arm.state().camera_pose
+
+    camera = SimCamera(scene, camera_pose, camera_model, clock=clock)
+    world = BenchWorld(clock, truth, scene)
+    return DriverSet(body, arm, igniter, camera, extras={"world": world})
