@@ -16,7 +16,6 @@ No fsync: a kernel crash or power loss of the computer can still lose the page c
 from __future__ import annotations
 
 import atexit
-import math
 import struct
 import threading
 import time
@@ -97,21 +96,31 @@ def cdr_string(text: str) -> bytes:
     return b"\x00\x01\x00\x00" + struct.pack("<I", len(b)) + b
 
 
-def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation matrix (Shepperd's method, numerically safe branch)."""
-    t = R[0, 0] + R[1, 1] + R[2, 2]
-    if t > 0:
-        s = 2.0 * math.sqrt(t + 1.0)
-        return ((R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s)
-    i = int(np.argmax(np.diag(R)))
-    j, k = (i + 1) % 3, (i + 2) % 3
-    s = 2.0 * math.sqrt(max(1.0 + R[i, i] - R[j, j] - R[k, k], 1e-300))
-    q = [0.0, 0.0, 0.0, 0.0]
-    q[i] = 0.25 * s
-    q[j] = (R[j, i] + R[i, j]) / s
-    q[k] = (R[k, i] + R[i, k]) / s
-    q[3] = (R[k, j] - R[j, k]) / s
-    return (q[0], q[1], q[2], q[3])
+def quaternions(R: np.ndarray) -> np.ndarray:
+    """(N, 4) quaternions (x, y, z, w) of rotation matrices (N, 3, 3), w ≥ 0.
+
+    Per matrix, the largest of 4w², 4x², 4y², 4z² picks the numerically safe formula.
+    """
+    R = np.asarray(R, dtype=float).reshape(-1, 3, 3)
+    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    d = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], axis=1)
+    k = np.argmax(d, axis=1)
+    s = 2.0 * np.sqrt(np.maximum(d[np.arange(len(R)), k], 1e-300))
+    a, b, c = R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]
+    e, f, g = R[:, 0, 1] + R[:, 1, 0], R[:, 0, 2] + R[:, 2, 0], R[:, 1, 2] + R[:, 2, 1]
+    q = np.empty((len(R), 4))
+    # columns: x, y, z, w
+    cases = [
+        (a, b, c, 0.25 * s * s),  # w largest: (x, y, z) = (a, b, c)/s, w = s/4
+        (0.25 * s * s, e, f, a),  # x largest
+        (e, 0.25 * s * s, g, b),  # y largest
+        (f, g, 0.25 * s * s, c),  # z largest
+    ]
+    for i, (x, y, z, w) in enumerate(cases):
+        sel = k == i
+        q[sel] = np.stack([x[sel], y[sel], z[sel], w[sel]], axis=1) / s[sel, None]
+    q[q[:, 3] < 0] *= -1.0
+    return q
 
 
 def _ts(t_ns: int) -> Timestamp:
@@ -193,6 +202,7 @@ class RunLog:
         self._links += [(p, c) for c, p in parents.items() if c in fk0 and p in fk0]
         flange = robot.model.frames[robot.flange_id].name
         self._links += [(flange, CAMERA), (flange, NOZZLE)]
+        self._frame_pairs = [(FIELD, BODY), (BODY, ARM_BASE)] + self._links
         self._T_body_base = robot.T_body_base.copy()
         self._height = robot.cfg.body.operating_height
 
@@ -282,14 +292,25 @@ class RunLog:
         t0 = time.perf_counter()
         poses = self.robot.fk(np.asarray(q, dtype=float))
         poses[ARM_BASE] = np.eye(4)
+        # One batched pass (not 14 small numpy calls): parent⁻¹·child and quaternions.
+        P = np.stack([body.matrix(self._height), self._T_body_base] + [poses[p] for p, _ in self._links])
+        C = np.stack([self._T_body_base] + [poses[c] for _, c in self._links])
+        R = np.einsum("nji,njk->nik", P[1:, :3, :3], C[:, :3, :3])
+        t = np.einsum("nji,nj->ni", P[1:, :3, :3], C[:, :3, 3] - P[1:, :3, 3])
+        R = np.concatenate([P[:1, :3, :3], R])
+        t = np.concatenate([P[:1, :3, 3], t])
+        quats = quaternions(R).tolist()
         ts = _ts(t_ns)
         tfs = [
-            _frame_transform(ts, FIELD, BODY, body.matrix(self._height)),
-            _frame_transform(ts, BODY, ARM_BASE, self._T_body_base),
+            FrameTransform(
+                timestamp=ts,
+                parent_frame_id=parent,
+                child_frame_id=child,
+                translation=Vector3(x=tr[0], y=tr[1], z=tr[2]),
+                rotation=Quaternion(x=qq[0], y=qq[1], z=qq[2], w=qq[3]),
+            )
+            for (parent, child), tr, qq in zip(self._frame_pairs, t.tolist(), quats)
         ]
-        for parent, child in self._links:
-            Tp, Tc = poses[parent], poses[child]
-            tfs.append(_frame_transform(ts, parent, child, _relative(Tp, Tc)))
         msg = FrameTransforms(transforms=tfs)
         self.call_time_s += time.perf_counter() - t0
         self._emit(t_ns, lambda: self._tf.log(msg, log_time=int(t_ns)))
@@ -425,26 +446,6 @@ class RunLog:
 
 
 # ---- helpers ---------------------------------------------------------------------------------
-def _relative(T_parent: np.ndarray, T_child: np.ndarray) -> np.ndarray:
-    R = T_parent[:3, :3]
-    out = np.eye(4)
-    out[:3, :3] = R.T @ T_child[:3, :3]
-    out[:3, 3] = R.T @ (T_child[:3, 3] - T_parent[:3, 3])
-    return out
-
-
-def _frame_transform(ts: Timestamp, parent: str, child: str, T: np.ndarray) -> FrameTransform:
-    x, y, z, w = quaternion(T[:3, :3])
-    t = T[:3, 3]
-    return FrameTransform(
-        timestamp=ts,
-        parent_frame_id=parent,
-        child_frame_id=child,
-        translation=Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2])),
-        rotation=Quaternion(x=x, y=y, z=z, w=w),
-    )
-
-
 def _fill_pose(m, p: SE2) -> None:
     m.x, m.y, m.yaw = float(p.x), float(p.y), float(p.yaw)
 

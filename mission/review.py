@@ -1,0 +1,316 @@
+"""`capm-field review RUN.mcap [--rrd FILE] [--web]`: open a run log in Rerun.
+
+Rerun loads the MCAP natively (transforms, URDF, image, calibration, text log); this module adds
+what Rerun cannot draw from our custom protobuf messages, as Rerun archetypes in the `field`
+frame: TROI discs, R_o / R_m annuli, planned and executed key states, detections (3D and on the
+image), bench ground truth, the body's path, and igniter / energy time series. Then it lays
+out a blueprint: 3D field | camera, igniter, energy, log.
+
+Always goes through an .rrd file (`--rrd FILE`, else a temporary one): `rr.init(spawn=True)`
+blocks and drops data headless (DEPENDENCY_NOTES), a file is exact and re-openable. The viewer
+(native, or web on 127.0.0.1 with `--web`) is the `rerun` binary started directly, not the
+Python wrapper, so the one child we start is the one we stop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import uuid
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+from rerun.chunk import McapReader
+
+from capm_field.errors import UserError
+
+from .runlog import TOPICS
+from .runlog_read import ReadReport, check_mcap, iter_run
+
+TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
+FIELD = "field"
+IMAGE_PLANE = "camera_image_plane"  # Rerun's frame for the image of a Foxglove CameraCalibration
+_DURATION_LIMIT_NS = 10**17  # below ~1973: a monotonic or sim clock, shown as a duration
+
+COLORS = {
+    "troi": (255, 215, 0),
+    "ro": (66, 135, 245),
+    "rm": (245, 130, 48),
+    "plan": (160, 160, 160),
+    "key_state": (0, 220, 220),
+    "detection": (50, 220, 50),
+    "truth": (230, 50, 230),
+    "body_path": (120, 120, 255),
+    "flame_on": (255, 60, 0),
+    "armed": (255, 200, 0),
+    "interlock_ok": (0, 180, 0),
+    "fuel": (120, 120, 120),
+    "estop": (200, 0, 0),
+    "total": (66, 135, 245),
+    "target_energy": (245, 130, 48),
+}
+_CUSTOM = {TOPICS[k] for k in ("plan", "key_state", "detection", "regions", "energy", "igniter", "truth_mpoi", "tf")}
+
+
+@dataclass
+class RunData:
+    """What the review draws itself, decoded from the custom topics."""
+
+    first_ns: int | None = None
+    last_ns: int | None = None
+    messages: dict[str, list] = field(default_factory=lambda: defaultdict(list))  # topic -> [(t, msg)]
+    body_path: list[tuple[float, float, float]] = field(default_factory=list)
+    report: ReadReport = field(default_factory=ReadReport)
+
+
+def load_run(path: Path) -> RunData:
+    data = RunData()
+    for m in iter_run(path, report=data.report):
+        data.first_ns = m.log_time if data.first_ns is None else min(data.first_ns, m.log_time)
+        data.last_ns = m.log_time if data.last_ns is None else max(data.last_ns, m.log_time)
+        if m.topic == TOPICS["tf"]:
+            for tf in m.data.transforms:
+                if tf.parent_frame_id == "field" and tf.child_frame_id == "body":
+                    data.body_path.append((tf.translation.x, tf.translation.y, tf.translation.z))
+        elif m.topic in _CUSTOM:
+            data.messages[m.topic].append((m.log_time, m.data))
+    if data.report.messages == 0:
+        why = f": {data.report.error}" if data.report.error else ""
+        raise UserError(f"no readable messages in {path}{why}")
+    return data
+
+
+# ---- geometry ----------------------------------------------------------------------------------
+def circle(cx: float, cy: float, r: float, z: float = 0.01, n: int = 72) -> np.ndarray:
+    a = np.linspace(0.0, 2.0 * math.pi, n + 1)
+    return np.c_[cx + r * np.cos(a), cy + r * np.sin(a), np.full(n + 1, z)]
+
+
+# ---- logging -----------------------------------------------------------------------------------
+class _Logger:
+    def __init__(self, rec: rr.RecordingStream, duration: bool) -> None:
+        self.rec = rec
+        self.duration = duration
+        self._framed: set[str] = set()
+
+    def at(self, t_ns: int) -> None:
+        if self.duration:
+            self.rec.set_time(TIMELINE, duration=np.timedelta64(int(t_ns), "ns"))
+        else:
+            self.rec.set_time(TIMELINE, timestamp=np.datetime64(int(t_ns), "ns"))
+
+    def log(self, path: str, *archetypes, frame: str = FIELD, static: bool = False) -> None:
+        if path not in self._framed:  # which named frame the entity lives in (Rerun ≥ 0.27)
+            self.rec.log(path, rr.CoordinateFrame(frame), static=True)
+            self._framed.add(path)
+        self.rec.log(path, *archetypes, static=static)
+
+
+def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
+    lg = _Logger(rec, duration)
+    msgs = data.messages
+    t0 = data.first_ns or 0
+
+    # TROIs: all of them from the run's start, so the field overview shows every weed.
+    trois: dict[str, tuple[float, float, float]] = {}
+    for topic in (TOPICS["plan"], TOPICS["regions"]):
+        for _, m in msgs[topic]:
+            if m.HasField("troi"):
+                trois.setdefault(m.target_id or m.troi.id, (m.troi.x, m.troi.y, m.troi.r))
+    lg.at(t0)
+    for tid, (x, y, r) in trois.items():
+        lg.log(f"/review/troi/{tid}", rr.LineStrips3D([circle(x, y, r)], colors=[COLORS["troi"]], radii=[0.004], labels=[f"TROI {tid}"]))
+        lg.log(f"/review/troi/{tid}/centre", rr.Points3D([[x, y, 0.01]], colors=[COLORS["troi"]], radii=[0.01]))
+
+    if data.body_path:
+        lg.log("/review/body_path", rr.LineStrips3D([np.asarray(data.body_path)], colors=[COLORS["body_path"]], radii=[0.005]), static=True)
+
+    for t, m in msgs[TOPICS["regions"]]:
+        lg.at(t)
+        tid = m.target_id
+        ro = [circle(m.troi.x, m.troi.y, r, z=0.006) for a in m.ro for r in (a.r_inner, a.r_outer) if r > 0]
+        lg.log(f"/review/regions/{tid}/R_o", rr.LineStrips3D(ro or [np.zeros((0, 3))], colors=[COLORS["ro"]], radii=[0.003]))
+        if m.HasField("mpoi"):
+            rm = [circle(m.mpoi.x, m.mpoi.y, r, z=0.008) for a in m.rm for r in (a.r_inner, a.r_outer) if r > 0]
+            lg.log(f"/review/regions/{tid}/R_m", rr.LineStrips3D(rm or [np.zeros((0, 3))], colors=[COLORS["rm"]], radii=[0.003]))
+
+    for t, m in msgs[TOPICS["plan"]]:
+        lg.at(t)
+        pts = [(m.start.x, m.start.y)] + [(k.body.x, k.body.y) for k in m.key_states] + [(m.end.x, m.end.y)]
+        labels = ["start"] + [k.label for k in m.key_states] + ["end"]
+        xyz = np.c_[np.asarray(pts), np.full(len(pts), 0.02)]
+        path = f"/review/plan/{m.target_id}"
+        lg.log(path, rr.LineStrips3D([xyz], colors=[COLORS["plan"]], radii=[0.004], labels=[f"{m.planner} p={m.p_upper:.2f} E={m.expected_cost:.1f}"]))
+        lg.log(f"{path}/states", rr.Points3D(xyz, colors=[COLORS["plan"]] * len(xyz), radii=[0.02] * len(xyz), labels=labels))
+
+    executed: dict[str, list] = defaultdict(list)
+    for t, m in msgs[TOPICS["key_state"]]:
+        lg.at(t)
+        executed[m.target_id].append(m)
+        ks = executed[m.target_id]
+        xyz = np.array([(k.body.x, k.body.y, 0.03) for k in ks])
+        labels = [k.label + (f" ({k.note})" if k.note else "") for k in ks]
+        path = f"/review/key_states/{m.target_id}"
+        lg.log(path, rr.Points3D(xyz, colors=[COLORS["key_state"]] * len(ks), radii=[0.03] * len(ks), labels=labels))
+        lg.log(f"{path}/path", rr.LineStrips3D([xyz], colors=[COLORS["key_state"]], radii=[0.006]))
+        if m.arm and m.HasField("target"):
+            lg.log(f"{path}/aim", rr.Points3D([[m.target.x, m.target.y, 0.01]], colors=[COLORS["key_state"]], radii=[0.012], labels=[m.arm]))
+
+    for t, m in msgs[TOPICS["detection"]]:
+        lg.at(t)
+        tid = m.target_id
+        if m.HasField("mpoi_field"):
+            lg.log(f"/review/detection/{tid}", rr.Points3D([[m.mpoi_field.x, m.mpoi_field.y, 0.01]], colors=[COLORS["detection"]], radii=[0.015], labels=[f"MPOI {m.confidence:.2f}"]))
+        if m.HasField("pixel"):
+            lg.log("/camera/image/detection", rr.Points2D([[m.pixel.x, m.pixel.y]], colors=[COLORS["detection"]], radii=[8.0], labels=[f"{tid} {m.confidence:.2f}"]), frame=IMAGE_PLANE)
+        else:
+            lg.log("/camera/image/detection", rr.Clear(recursive=False), frame=IMAGE_PLANE)
+            lg.log(f"/review/detection/{tid}/miss", rr.TextLog(f"{tid}: no MPOI ({m.reason or 'no reason'})", level="WARN"))
+
+    for t, m in msgs[TOPICS["truth_mpoi"]]:
+        lg.at(t)
+        lg.log(f"/review/truth/{m.target_id}", rr.Points3D([[m.mpoi.x, m.mpoi.y, 0.012]], colors=[COLORS["truth"]], radii=[0.012], labels=["truth"]))
+
+    _series(lg, msgs)
+
+
+def _series(lg: _Logger, msgs: dict[str, list]) -> None:
+    rec = lg.rec
+    step = rr.components.InterpolationMode.StepAfter
+    for name in ("flame_on", "armed", "interlock_ok", "estop", "fuel"):
+        rec.log(f"/plots/igniter/{name}", rr.SeriesLines(colors=[COLORS[name]], names=[name], widths=[2.0], interpolation_mode=step if name != "fuel" else None), static=True)
+    for name in ("total", "target_energy"):
+        rec.log(f"/plots/energy/{name}", rr.SeriesLines(colors=[COLORS[name]], names=[name], widths=[2.0]), static=True)
+    rec.log("/plots/energy/body_moves", rr.SeriesPoints(colors=[(90, 90, 90)], names=["body_moves"], marker_sizes=[3.0]), static=True)
+    for t, m in msgs[TOPICS["igniter"]]:
+        lg.at(t)
+        for name in ("flame_on", "armed", "interlock_ok", "estop"):
+            rec.log(f"/plots/igniter/{name}", rr.Scalars([float(getattr(m, name))]))
+        rec.log("/plots/igniter/fuel", rr.Scalars([m.fuel]))
+    for t, m in msgs[TOPICS["energy"]]:
+        lg.at(t)
+        rec.log("/plots/energy/total", rr.Scalars([m.total]))
+        rec.log("/plots/energy/target_energy", rr.Scalars([m.target_energy]))
+        rec.log("/plots/energy/body_moves", rr.Scalars([float(m.body_moves)]))
+
+
+def blueprint() -> rrb.Blueprint:
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(
+                name="Field",
+                origin="/",
+                contents=["/**", "- /plots/**"],
+                spatial_information=rrb.SpatialInformation(target_frame=FIELD, show_axes=True),
+            ),
+            rrb.Vertical(
+                rrb.Spatial2DView(name="Camera", origin="/camera/image"),
+                rrb.TimeSeriesView(name="Igniter (1 = on/true)", origin="/plots/igniter"),
+                rrb.TimeSeriesView(name="Energy", origin="/plots/energy"),
+                rrb.TextLogView(name="Log", contents=["/log/**", "/review/**"]),
+                row_shares=[3, 2, 2, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline=TIMELINE, expanded=True),
+        collapse_panels=False,
+    )
+
+
+def _urdf_package_path() -> str | None:
+    """Where `package://example-robot-data/...` (the Z1 meshes) resolves, for Rerun's importer."""
+    try:
+        from capm_field.robot_model import default_urdf_path
+
+        share = default_urdf_path().parents[4]  # .../share/example-robot-data/robots/z1_description/urdf
+        return str(share) if (share / "example-robot-data").is_dir() else None
+    except Exception:  # noqa: BLE001 - meshes are a nicety; the arm still animates as frames
+        return None
+
+
+def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
+    """Convert the run to an .rrd: native MCAP import + our archetypes + blueprint."""
+    data = data or load_run(mcap)
+    duration = (data.first_ns or 0) < _DURATION_LIMIT_NS
+    pkg = _urdf_package_path()
+    if pkg and "ROS_PACKAGE_PATH" not in os.environ:
+        os.environ["ROS_PACKAGE_PATH"] = pkg
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream("capm_field_review", recording_id=str(uuid.uuid4()))
+    rec.save(str(out), default_blueprint=blueprint())
+    try:
+        # recover=True: a crash-truncated log has no summary; Rerun rebuilds it by scanning.
+        reader = McapReader(str(mcap), recover=True, timeline_type="duration_ns" if duration else "timestamp_ns")
+        rr.send_chunks(reader.stream(), recording=rec)
+    except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
+        raise UserError(f"Rerun cannot read {mcap}: {e}") from e
+    rec.send_recording_name(mcap.parent.name + "/" + mcap.name)
+    log_extras(rec, data, duration)
+    rec.flush()
+    rec.disconnect()
+    return data
+
+
+# ---- viewers -----------------------------------------------------------------------------------
+def _rerun_binary() -> str:
+    import rerun_cli
+
+    exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform.startswith("win") else "rerun")
+    if not exe.is_file():
+        raise UserError(f"the Rerun viewer binary is missing: {exe} (reinstall rerun-sdk)")
+    return str(exe)
+
+
+def _run_child(cmd: list[str]) -> int:
+    """Run the viewer until it exits or Ctrl-C; then stop it and its process group (ours)."""
+    proc = subprocess.Popen(cmd, start_new_session=True)
+    try:
+        return proc.wait()
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)  # the group we created for this child only
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="capm-field review", description=__doc__.splitlines()[0])
+    ap.add_argument("run", help="run log (run.mcap), also one cut short by a crash")
+    ap.add_argument("--rrd", type=Path, help="write a Rerun recording to this file (headless, no viewer)")
+    ap.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of the native viewer")
+    ap.add_argument("--web-port", type=int, default=9090, help="HTTP port of the web viewer (default 9090)")
+    ap.add_argument("--grpc-port", type=int, default=9876, help="gRPC port the web viewer reads from (default 9876)")
+    args = ap.parse_args(argv)
+
+    mcap = check_mcap(args.run)
+    data = load_run(mcap)
+    if data.report.error:
+        print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {data.report.error}", file=sys.stderr)
+    if args.rrd and not args.web:
+        write_rrd(mcap, args.rrd, data)
+        print(f"wrote {args.rrd} ({data.report.messages} messages)")
+        return 0
+
+    with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
+        out = args.rrd or Path(tmp) / "run.rrd"
+        write_rrd(mcap, out, data)
+        if args.web:
+            print(f"web viewer: http://127.0.0.1:{args.web_port}  (Ctrl-C to stop)")
+            cmd = [_rerun_binary(), "--web-viewer", "--bind", "127.0.0.1", "--port", str(args.grpc_port), "--web-viewer-port", str(args.web_port), str(out)]
+        else:
+            cmd = [_rerun_binary(), str(out)]
+        return _run_child(cmd)
