@@ -172,6 +172,9 @@ class CanArm(Arm):
             if time.monotonic() >= deadline:
                 self._command(ARM_STOP)
                 raise DriverTimeout("arm move not finished within its timeout")
+            if time.monotonic_ns() - self._q_stamp > self.cfg.state_timeout * 1e9:
+                st.duration_s = time.monotonic() - t0
+                return self._fail("state_stale")  # streaming blind: stop rather than guess
             t = k * period
             self._send_target(traj(min(t, duration)))
             st.sent += 1

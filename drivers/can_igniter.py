@@ -143,6 +143,8 @@ class CanIgniter(Igniter):
                 now = time.monotonic()
                 with self._cv:
                     flame, fault, stamp = bool(self._s("FlameOn")), self.fault, self._status_stamp
+                if time.monotonic_ns() - stamp > self.cfg.status_timeout * 1e9:
+                    return result(False, "status_stale")  # blind: cannot confirm the flame, so stop
                 if flame and flame_t0 is None and stamp / 1e9 >= t0:
                     flame_t0 = now
                 if flame_t0 is not None:

@@ -261,3 +261,20 @@ def test_stream_500hz_60s():
     assert s["lost"] == 0 and s["reordered"] == 0 and s["incomplete_pairs"] == 0 and s["fault"] is None, s
     # on a loaded shared CPU the streamer skips (never bursts) ticks it was >10 ms late for
     assert 480.0 <= s["rate_hz"] <= 505.0, s
+
+
+def test_blind_host_stops_arm_and_flame():
+    """Status frames lost while the heartbeat continues: the host stops rather than guess."""
+    with CanBench(heartbeat_timeout=0.3) as bench:
+        rs = bench.robot_side
+        ign = bench.igniter
+        ign.arm(timeout=1.0)
+        threading.Timer(0.3, lambda: rs.faults.drop_tx.update({"IGN_STATUS": 10_000})).start()
+        r = ign.ignite(1.0, lambda: True, timeout=2.0)
+        assert not r.ok and r.reason == "status_stale"
+        time.sleep(0.1)
+        assert not rs.board.flame_on and not rs.board.valve_open
+        threading.Timer(0.2, lambda: rs.faults.drop_tx.update({"ARM_STATE_B": 10_000})).start()
+        r = bench.arm.move_joints(np.array([0.6, 1.2, -1.2, 0.3, 0.4, 0.2]), timeout=5.0)
+        assert not r.ok and r.reason == "state_stale"
+        rs.faults.drop_tx.clear()
