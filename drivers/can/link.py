@@ -89,7 +89,10 @@ class CanLink(can.Listener):
         self._on_frame(name, sig)
 
     def on_error(self, exc: Exception) -> None:
+        # Called by the Notifier for a recv error (bus-off, interface down) or a handler bug; it
+        # then keeps receiving, so pause briefly: a persistent error must not spin a core.
         self.mark_lost(f"bus error: {exc}")
+        time.sleep(0.01)
 
     # ---- heartbeat producer + consumer -----------------------------------------------------
     def _run(self) -> None:
