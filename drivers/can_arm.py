@@ -96,7 +96,10 @@ class CanArm(Arm):
     # ---- helpers -----------------------------------------------------------------------------
     @property
     def fault(self) -> str | None:
-        return ARM_FAULTS.get(self._status["FaultCode"], "unknown") if self._status["Mode"] == 4 or self._status["FaultCode"] else None
+        code = self._status["FaultCode"]
+        if self._status["Mode"] != 4 and not code:
+            return None
+        return ARM_FAULTS.get(code) or f"fault_{code}"  # mode FAULT always reports a fault
 
     @property
     def mode(self) -> str:
@@ -173,8 +176,12 @@ class CanArm(Arm):
                 self._command(ARM_STOP)
                 raise DriverTimeout("arm move not finished within its timeout")
             if time.monotonic_ns() - self._q_stamp > self.cfg.state_timeout * 1e9:
+                # streaming blind: stop rather than guess; then tell link loss from lost state frames
                 st.duration_s = time.monotonic() - t0
-                return self._fail("state_stale")  # streaming blind: stop rather than guess
+                self._command(ARM_STOP)
+                self.link.wait_lost(self.cfg.heartbeat.timeout)
+                self._check()
+                return self._fail("state_stale")
             t = k * period
             self._send_target(traj(min(t, duration)))
             st.sent += 1

@@ -68,7 +68,10 @@ class CanIgniter(Igniter):
 
     @property
     def fault(self) -> str | None:
-        return IGN_FAULTS.get(self._s("FaultCode"), "unknown") if self._s("FaultLatched") or self._s("FaultCode") else None
+        code = self._s("FaultCode")
+        if not self._s("FaultLatched") and not code:
+            return None
+        return IGN_FAULTS.get(code) or f"fault_{code}"  # a latched fault is always reported
 
     def _command(self, cmd: int) -> bool:
         if self._closed and cmd not in (IGN_EXTINGUISH, IGN_DISARM):
@@ -144,7 +147,11 @@ class CanIgniter(Igniter):
                 with self._cv:
                     flame, fault, stamp = bool(self._s("FlameOn")), self.fault, self._status_stamp
                 if time.monotonic_ns() - stamp > self.cfg.status_timeout * 1e9:
-                    return result(False, "status_stale")  # blind: cannot confirm the flame, so stop
+                    # blind: cannot confirm the flame, so stop now; then tell link loss from lost status
+                    self.extinguish()
+                    self.link.wait_lost(self.cfg.heartbeat.timeout)
+                    self._check()
+                    return result(False, "status_stale")
                 if flame and flame_t0 is None and stamp / 1e9 >= t0:
                     flame_t0 = now
                 if flame_t0 is not None:
@@ -183,7 +190,7 @@ class CanIgniter(Igniter):
     def state(self) -> IgniterState:
         with self._cv:
             s, stamp = dict(self._status), self._status_stamp
-        fault = "link_lost" if not self.link.ok else (IGN_FAULTS.get(s["FaultCode"], "unknown") if s["FaultLatched"] else None)
+        fault = "link_lost" if not self.link.ok else self.fault
         return IgniterState(armed=bool(s["Armed"]), flame_on=bool(s["FlameOn"]), fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault=fault)
 
     @property

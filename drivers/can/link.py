@@ -143,6 +143,13 @@ class CanLink(can.Listener):
         if not self.peer_seen.wait(timeout):
             raise LinkLost(f"no heartbeat from {self._peer_hb} within {timeout:.2f} s (is the gateway on the bus?)")
 
+    def wait_lost(self, timeout: float) -> bool:
+        """Wait up to `timeout` s for the link to be declared lost; True if it was."""
+        end = time.monotonic() + timeout
+        while self.lost_reason is None and not self._closed and time.monotonic() < end:
+            time.sleep(0.005)
+        return self.lost_reason is not None
+
     def send(self, msg: can.Message) -> bool:
         """Send a frame; a send error marks the link lost (bus-off, closed) and returns False."""
         if self._closed:
