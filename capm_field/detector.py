@@ -208,10 +208,10 @@ def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
             return bad
 
     # ---- vegetation mask
-    vi = vegetation_index(small)
-    vi = cv2.GaussianBlur(vi, (0, 0), 0.8)
-    thr, contrast = _threshold(vi[inside])
-    mask = _hysteresis(vi, thr, inside)
+    gains = soil_gains(small, inside)
+    vi = cv2.GaussianBlur(vegetation_index(small, gains=gains), (0, 0), 0.8)
+    thr, soil_level, contrast = _threshold(vi[inside])
+    mask = _hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     min_area = max(6.0, 1.5e-4 * inside.sum())
     comps = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area]
@@ -244,7 +244,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
     ys, xs = np.nonzero(gmask)
     bx0, bx1 = to_full(np.array([xs.min() - 0.5, 0]))[0], to_full(np.array([xs.max() + 0.5, 0]))[0]
     by0, by1 = to_full(np.array([0, ys.min() - 0.5]))[1], to_full(np.array([0, ys.max() + 0.5]))[1]
-    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, roi)
+    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi)
     if centre is None:
         return Detection(None, 0.0, "no_plant")
 
@@ -254,7 +254,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
     touches = bx0 <= 1 or by0 <= 1 or bx1 >= W - 2 or by1 >= H - 2
     if touches and border_d < 0.15 * size:
         return Detection(None, 0.1, "cut_by_border")
-    conf = min(1.0, contrast / 0.25) * (0.6 + 0.4 * min(1.0, tips / 3)) * (1 - 0.7 * runner) * (0.7 + 0.3 * sharp)
+    conf = min(1.0, contrast / 0.1) * (0.6 + 0.4 * min(1.0, tips / 3)) * (1 - 0.7 * runner) * (0.7 + 0.3 * sharp)
     if touches:
         conf *= 0.8
     if roi is not None and not roi.contains(centre[None], 1.0)[0]:
@@ -266,34 +266,64 @@ def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
 
 
 # ---- pieces ------------------------------------------------------------------------------------
-def vegetation_index(bgr: np.ndarray) -> np.ndarray:
-    """ExG − ExR = 3g − 2.4r − b on chromaticities; dark pixels damped (they carry no colour)."""
+SOIL_REF = np.array([0.27, 0.33, 0.40], np.float32)  # typical soil chromaticity (B, G, R)
+
+
+def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
+    """Per-channel gains mapping the scene's soil to a typical soil colour (von Kries).
+
+    The soil reference is the median colour of the less-green half of the pixels, so a colour
+    cast of the light or the camera's white balance is removed before judging greenness. Gains
+    are bounded so a frame filled with leaves cannot be "corrected" into soil.
+    """
+    f = bgr.reshape(-1, 3) if inside is None else bgr[inside]
+    f = f.astype(np.float32)
+    gs = greenness(f[None])[0]
+    soil = f[gs <= np.median(gs)]
+    ref = np.median(soil, axis=0) + 1.0
+    g = SOIL_REF / (ref / ref.sum())
+    return np.clip(g / g[1], 0.6, 1.6).astype(np.float32)
+
+
+def greenness(bgr: np.ndarray) -> np.ndarray:
+    """G* = (G − max(R, B)) / (B + G + R + 30): positive only where green dominates.
+
+    Live leaves reflect green more than red and blue; soil, stones, straw and dead leaves do not.
+    The +30 keeps sensor noise in dark shadows from looking green.
+    """
     f = bgr.astype(np.float32)
-    b, g, r = cv2.split(f)
-    s = b + g + r + 30.0  # the offset keeps sensor noise in shadows from looking green
-    return (3.0 * g - 2.4 * r - b) / s
+    b, g, r = f[..., 0], f[..., 1], f[..., 2]
+    return (g - np.maximum(r, b)) / (b + g + r + 30.0)
 
 
-def _threshold(v: np.ndarray) -> tuple[float, float]:
-    """Otsu threshold on the index, clamped to [0.06, 0.25]; and the plant/soil contrast."""
+def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: np.ndarray | None = None) -> np.ndarray:
+    """Greenness after soil-referenced white balance (see `soil_gains`), float32 (h, w)."""
+    if gains is None:
+        gains = soil_gains(bgr, inside)
+    return greenness(bgr.astype(np.float32) * gains)
+
+
+def _threshold(v: np.ndarray) -> tuple[float, float, float]:
+    """(threshold, soil level, contrast) of the index over the search window.
+
+    Soil is the bulk of the pixels; its spread is measured on the lower side (plants only add
+    pixels on the upper side, but they rarely fill a tenth of a TROI view). Vegetation must stand
+    5 σ above the soil level, with the threshold kept within G* ∈ [0.02, 0.10].
+    """
     v = v.ravel()
-    lo, hi = float(np.percentile(v, 1)), float(np.percentile(v, 99.9))
-    if hi - lo < 1e-6:
-        return 0.25, 0.0
-    q = np.clip((v - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
-    t, _ = cv2.threshold(q.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    thr = float(np.clip(lo + t / 255 * (hi - lo), 0.06, 0.25))
+    med, p90 = (float(x) for x in np.percentile(v, [50, 90]))
+    sig = max((p90 - med) / 1.28, 0.004)
+    thr = float(np.clip(med + 5.0 * sig, 0.02, 0.10))
     above = v[v > thr]
-    below = v[v <= thr]
-    contrast = float(np.median(above) - np.median(below)) if len(above) and len(below) else 0.0
-    return thr, contrast
+    contrast = float(np.median(above) - med) if len(above) else 0.0
+    return thr, med, contrast
 
 
-def _hysteresis(vi: np.ndarray, thr: float, inside: np.ndarray) -> np.ndarray:
-    """Pixels above 0.6·thr connected to a pixel above thr (keeps thin stems and leaf margins)."""
+def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> np.ndarray:
+    """Pixels halfway from soil to thr connected to a pixel above thr (keeps stems, leaf margins)."""
     strong = (vi > thr) & inside
     strong = cv2.morphologyEx(strong.astype(np.uint8), cv2.MORPH_OPEN, np.ones((2, 2), np.uint8)).astype(bool)
-    weak = (vi > 0.6 * thr) & inside
+    weak = (vi > 0.5 * (thr + max(soil, 0.0))) & inside
     n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
     keep = np.zeros(n, bool)
     keep[np.unique(lab[strong])] = True
@@ -329,7 +359,7 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
     return groups
 
 
-def _centre_fullres(img: np.ndarray, box: tuple[float, float, float, float], thr: float, roi: Roi | None):
+def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None):
     """Tree-median centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness)."""
     H, W = img.shape[:2]
     bx0, by0, bx1, by1 = box
@@ -342,13 +372,13 @@ def _centre_fullres(img: np.ndarray, box: tuple[float, float, float, float], thr
     interp = cv2.INTER_AREA if k < 1 else cv2.INTER_LINEAR
     pc = cv2.resize(crop, (nw, nh), interpolation=interp)
     kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
-    vi = cv2.GaussianBlur(vegetation_index(pc), (0, 0), 0.8)
+    vi = cv2.GaussianBlur(vegetation_index(pc, gains=gains), (0, 0), 0.8)
     inside = np.ones(vi.shape, bool)
     if roi is not None:
         jj, ii = np.meshgrid(np.arange(nw), np.arange(nh))
         full = np.c_[X0 + (jj.ravel() + 0.5) * kx - 0.5, Y0 + (ii.ravel() + 0.5) * ky - 0.5]
         inside = roi.contains(full, ROI_MARGIN).reshape(vi.shape)
-    mask = _hysteresis(vi, thr, inside)
+    mask = _hysteresis(vi, thr, soil, inside)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if n <= 1:
         return None, 0, 0.0
@@ -357,15 +387,17 @@ def _centre_fullres(img: np.ndarray, box: tuple[float, float, float, float], thr
     groups = _group(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
     g = next(gr for gr in groups if big in gr)
     plant = np.isin(lab, g)
-    uv, ntips, sharp = tree_median(plant)
+    uv, ntips, sharp = tree_median(plant, vi)
     if uv is None:
         return None, 0, 0.0
     return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp
 
 
-def tree_median(plant: np.ndarray) -> tuple[np.ndarray | None, int, float]:
+def tree_median(plant: np.ndarray, vi: np.ndarray | None = None) -> tuple[np.ndarray | None, int, float]:
     """Point minimising Σ geodesic distance to the leaf tips of a plant mask, in mask pixels.
 
+    With the vegetation index `vi`, the cost is combined with leaf-axis convergence votes
+    (`axis_votes`), which find the apex of fan-shaped plants (grass) where tips alone cannot.
     Returns ((x, y), number of tips, sharpness 0..1 of the minimum).
     """
     h, w = plant.shape
@@ -399,6 +431,14 @@ def tree_median(plant: np.ndarray) -> tuple[np.ndarray | None, int, float]:
     valid = node.ravel() >= 0
     flat[valid] = F[node.ravel()[valid]]
     Fm = flat.reshape(h, w)
+    if vi is not None and VOTE_WEIGHT > 0:
+        A = axis_votes(vi, plant, size)
+        fmin = float(np.min(Fm))
+        # trust the votes in proportion to how elongated the parts are: thin blades and narrow
+        # leaves point at the centre, round leaflets and cotyledons do not
+        thin = float(dt[plant].mean()) / size
+        wv = VOTE_WEIGHT * float(np.clip((THIN_ROUND - thin) / (THIN_ROUND - THIN_BLADE), 0.0, 1.0))
+        Fm = (Fm - fmin) / (fmin + 1e-9) - wv * A
     iy, ix = np.unravel_index(int(np.argmin(Fm)), Fm.shape)
     # sub-pixel: weighted mean of the near-minimum region
     fmin = Fm[iy, ix]
@@ -415,6 +455,48 @@ def tree_median(plant: np.ndarray) -> tuple[np.ndarray | None, int, float]:
     rise = float(np.nanmin(np.where(ring & np.isfinite(win), win, np.nan))) - fmin if ring.any() else 0.0
     sharp = float(np.clip(rise / (0.02 * fmin + 1e-6), 0, 1)) if np.isfinite(rise) else 0.0
     return np.array([cx, cy]), len(tips), sharp
+
+
+VOTE_WEIGHT = 2.0
+THIN_BLADE, THIN_ROUND = 0.02, 0.06  # mean half-width / plant size
+
+
+def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:
+    """Leaf-axis convergence map in [0, 1]: every leaf/blade edge votes along its own direction.
+
+    Blade edges, midribs and elongated leaf margins run towards where the leaves emerge, so
+    lines drawn along them (structure-tensor orientation) pile up at the biological centre.
+    """
+    h, w = vi.shape
+    f = cv2.GaussianBlur(vi, (0, 0), 1.0)
+    gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
+    sg = max(1.0, 0.015 * size)
+    jxx = cv2.GaussianBlur(gx * gx, (0, 0), sg)
+    jyy = cv2.GaussianBlur(gy * gy, (0, 0), sg)
+    jxy = cv2.GaussianBlur(gx * gy, (0, 0), sg)
+    tr = jxx + jyy
+    coh = np.sqrt((jxx - jyy) ** 2 + 4 * jxy**2) / (tr + 1e-9)
+    near = cv2.dilate(plant.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    wgt = coh * np.sqrt(tr) * near
+    ys, xs = np.nonzero(wgt > 0.2 * wgt.max())
+    if len(xs) < 5:
+        return np.zeros((h, w), np.float32)
+    if len(xs) > 1500:  # subsample for speed
+        sel = np.random.default_rng(0).choice(len(xs), 1500, replace=False)
+        ys, xs = ys[sel], xs[sel]
+    # edge direction = perpendicular to the dominant gradient
+    phi = 0.5 * np.arctan2(2 * jxy[ys, xs], jxx[ys, xs] - jyy[ys, xs]) + np.pi / 2
+    dx, dy = np.cos(phi), np.sin(phi)
+    L = int(0.6 * size)
+    t = np.arange(-L, L + 1, dtype=np.float32)
+    px = np.rint(xs[:, None] + dx[:, None] * t[None, :]).astype(np.int64)
+    py = np.rint(ys[:, None] + dy[:, None] * t[None, :]).astype(np.int64)
+    ok = (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    ww = np.broadcast_to(wgt[ys, xs][:, None], px.shape)
+    acc = np.bincount((py * w + px)[ok], weights=ww[ok], minlength=h * w).reshape(h, w).astype(np.float32)
+    acc = cv2.GaussianBlur(acc, (0, 0), max(1.0, 0.02 * size))
+    return acc / (acc.max() + 1e-9)
 
 
 def _tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:

@@ -51,7 +51,7 @@ class Lighting:
         slope = rng.uniform(0.1, 1.5)
         return Lighting(
             exposure=float(rng.uniform(0.6, 1.35)),
-            white_balance=tuple(float(v) for v in np.r_[rng.uniform(0.8, 1.25), 1.0, rng.uniform(0.8, 1.25)]),
+            white_balance=tuple(float(v) for v in np.r_[rng.uniform(0.85, 1.18), 1.0, rng.uniform(0.85, 1.18)]),
             sun=(slope * math.cos(sun_ang), slope * math.sin(sun_ang)),
             vignette=float(rng.uniform(0, 0.35)),
             blur_sigma=float(rng.choice([0.0, rng.uniform(0.3, 1.8)])),
@@ -110,6 +110,7 @@ class FieldScene:
         clutter: bool = True,
         lighting: Lighting | None = None,
         soil: SoilStyle | None = None,
+        clear_zones: list[tuple[np.ndarray, float]] = (),
     ) -> "FieldScene":
         """A deterministic scene from `seed`.
 
@@ -118,7 +119,8 @@ class FieldScene:
         are placed at random in `area` (x0, y0, x1, y1). The TROI of a weed defaults to the
         plant's area centroid (what a low-resolution prescan sees) with radius r_w drawn from
         `troi_radius` and grown if needed so the TROI holds the whole plant. `count=0` and no
-        `weeds` gives a bare-soil scene.
+        `weeds` gives a bare-soil scene. Crop plants stay out of every TROI and of `clear_zones`
+        ((centre, radius) discs), as a prescan would not put a TROI on a crop.
         """
         rng = np.random.default_rng(seed)
         soil = soil or SoilStyle.random(rng)
@@ -140,6 +142,17 @@ class FieldScene:
                     break
             placed.append(p)
             specs.append(dict(x=p[0], y=p[1], kind=str(rng.choice(kinds)), size=None))
+        out_weeds = []
+        weed_plants: list[Plant] = []
+        for s in specs:
+            plant = make_plant(s["kind"], rng, (s["x"], s["y"]), s.get("size"))
+            tc = s.get("troi_centre")
+            tc = plant.area_centroid() + rng.normal(0, 0.1 * plant.extent, 2) if tc is None else np.asarray(tc, float)
+            r = s.get("troi_radius")
+            if r is None:
+                r = max(rng.uniform(*troi_radius), float(np.max(np.linalg.norm(np.concatenate([p.poly for p in plant.parts]) - tc, axis=1))) * 1.05)
+            weed_plants.append(plant)
+            out_weeds.append(Weed(plant.kind, plant.centre, tc, float(r), plant))
         plants: list[Plant] = []
         if crop_rows:
             ang = rng.uniform(0, np.pi)
@@ -151,21 +164,16 @@ class FieldScene:
             for k in range(-int(span / row_spacing) - 1, int(span / row_spacing) + 2):
                 for s in np.arange(-span, span, rng.uniform(0.15, 0.3)):
                     c = np.array([cx, cy]) + n * (k * row_spacing + off) + d * (s + rng.uniform(-0.03, 0.03))
-                    if all(np.linalg.norm(c - q) > 0.35 for q in placed) and x0 - 0.5 < c[0] < x1 + 0.5 and y0 - 0.5 < c[1] < y1 + 0.5:
-                        plants.append(make_plant("crop", rng, c))
+                    p = make_plant("crop", rng, c)
+                    # a prescan would not put a TROI on a crop plant: keep crops out of every TROI
+                    zones = [(w.troi_centre, w.troi_radius) for w in out_weeds] + list(clear_zones)
+                    clear = all(np.linalg.norm(c - np.asarray(z)) > r + p.extent + 0.02 for z, r in zones)
+                    if clear and x0 - 0.5 < c[0] < x1 + 0.5 and y0 - 0.5 < c[1] < y1 + 0.5:
+                        plants.append(p)
         for _ in range(rng.poisson(distractors_per_m2 * (x1 - x0) * (y1 - y0))):
             c = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])
             plants.append(make_plant("seedling", rng, c, rng.uniform(0.004, 0.012)))
-        out_weeds = []
-        for s in specs:
-            plant = make_plant(s["kind"], rng, (s["x"], s["y"]), s.get("size"))
-            tc = s.get("troi_centre")
-            tc = plant.area_centroid() + rng.normal(0, 0.1 * plant.extent, 2) if tc is None else np.asarray(tc, float)
-            r = s.get("troi_radius")
-            if r is None:
-                r = max(rng.uniform(*troi_radius), float(np.max(np.linalg.norm(np.concatenate([p.poly for p in plant.parts]) - tc, axis=1))) * 1.05)
-            plants.append(plant)
-            out_weeds.append(Weed(plant.kind, plant.centre, tc, float(r), plant))
+        plants += weed_plants  # weeds drawn last (on top)
         cast = []
         for _ in range(shadows):
             c = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])

@@ -108,7 +108,7 @@ def leaf_outline(
     return poly, axis[-1]
 
 
-def _green(rng: np.random.Generator, hue=(55.0, 105.0), sat=(0.35, 0.8), val=(0.28, 0.62)) -> np.ndarray:
+def _green(rng: np.random.Generator, hue=(65.0, 115.0), sat=(0.4, 0.85), val=(0.28, 0.65)) -> np.ndarray:
     """A leaf green in BGR 0..255 from HSV ranges (hue in degrees)."""
     hsv = np.uint8([[[rng.uniform(*hue) / 2, rng.uniform(*sat) * 255, rng.uniform(*val) * 255]]])
     return cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0].astype(float)

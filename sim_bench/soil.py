@@ -34,7 +34,7 @@ class SoilStyle:
     @staticmethod
     def random(rng: np.random.Generator) -> "SoilStyle":
         def soil_colour(v):
-            hsv = np.uint8([[[rng.uniform(6, 22), rng.uniform(50, 150), v]]])
+            hsv = np.uint8([[[rng.uniform(6, 22), rng.uniform(40, 125), v]]])
             return tuple(float(c) for c in cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0])
 
         v = rng.uniform(60, 190)
@@ -120,7 +120,8 @@ def _cell_objects(seed: int, style: SoilStyle, cx: int, cy: int) -> tuple[Part, 
         rot = rng.uniform(0, np.pi)
         pts = np.c_[rad * np.cos(ang), ell * rad * np.sin(ang)] @ np.array([[math.cos(rot), math.sin(rot)], [-math.sin(rot), math.cos(rot)]])
         g = rng.uniform(80, 210)
-        tint = rng.uniform(0.85, 1.1, 3)
+        tint = rng.uniform(0.88, 1.08, 3)
+        tint[1] = min(tint[1], max(tint[0], tint[2]))  # grey/brown stones, not green
         col = tuple(float(v) for v in np.clip(g * tint, 0, 255))
         parts.append(Part(c + pts, c - [r, 0], c + [r, 0], col, height=0.6 * r))
     return tuple(parts)
