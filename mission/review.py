@@ -34,7 +34,7 @@ from rerun.chunk import McapReader
 from capm_field.errors import UserError
 
 from .runlog import TOPICS
-from .runlog_read import ReadReport, check_mcap, iter_run
+from .runlog_read import ReadReport, check_mcap, iter_run, salvage
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
 FIELD = "field"
@@ -247,12 +247,18 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
     out.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream("capm_field_review", recording_id=str(uuid.uuid4()))
     rec.save(str(out), default_blueprint=blueprint())
-    try:
-        # recover=True: a crash-truncated log has no summary; Rerun rebuilds it by scanning.
-        reader = McapReader(str(mcap), recover=True, timeline_type="duration_ns" if duration else "timestamp_ns")
-        rr.send_chunks(reader.stream(), recording=rec)
-    except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
-        raise UserError(f"Rerun cannot read {mcap}: {e}") from e
+    with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
+        source = mcap
+        if not data.report.complete:
+            # A crash file: Rerun's own recovery (recover=True) drops channels whose message index
+            # was torn, so hand it a finalised copy of exactly what our streaming reader read.
+            source = Path(tmp) / "salvaged.mcap"
+            salvage(mcap, source)
+        try:
+            reader = McapReader(str(source), recover=True, timeline_type="duration_ns" if duration else "timestamp_ns")
+            rr.send_chunks(reader.stream(), recording=rec)
+        except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
+            raise UserError(f"Rerun cannot read {mcap}: {e}") from e
     rec.send_recording_name(mcap.parent.name + "/" + mcap.name)
     log_extras(rec, data, duration)
     rec.flush()

@@ -1,9 +1,10 @@
 """Read a run log back, including one cut short by a crash (no summary, no footer, torn tail).
 
-A streaming read (`mcap.reader.NonSeekingReader`, in file order) needs no summary: it returns
-every message of every complete chunk and stops at the first incomplete record. Chunk CRCs are
-validated. Protobuf messages (ours and Foxglove's) are decoded from their embedded schemas with
-mcap-protobuf-support; /robot_description (ROS 2 String, cdr) is decoded here.
+A streaming read (`mcap.stream_reader.StreamReader`, what `NonSeekingReader` uses, in file
+order) needs no summary: it returns every message of every complete chunk and stops at the
+first incomplete record. Chunk CRCs are validated. Protobuf messages (ours and Foxglove's) are
+decoded from their embedded schemas with mcap-protobuf-support; /robot_description (ROS 2
+String, cdr) is decoded here. `salvage` copies the readable part into a finalised file.
 """
 
 from __future__ import annotations
@@ -11,10 +12,12 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
-from mcap.exceptions import EndOfFile
-from mcap.reader import NonSeekingReader
+from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
+from mcap.records import Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 
 from capm_field.errors import UserError
@@ -56,30 +59,98 @@ def check_mcap(path: str | Path) -> Path:
     return p
 
 
-def iter_run(path: str | Path, topics: set[str] | None = None, report: ReadReport | None = None) -> Iterator[RunMessage]:
-    """Messages in file order. Stops quietly at a torn tail (see `report.error`)."""
-    p = check_mcap(path)
-    report = report if report is not None else ReadReport()
-    factory = DecoderFactory()
-    with p.open("rb") as f:
-        reader = NonSeekingReader(f, validate_crcs=True)
-        it = reader.iter_messages(topics=topics, log_time_order=False)
+def _iter_records(path: Path, report: ReadReport) -> Iterator[Schema | Channel | Message | Metadata]:
+    """Schema, Channel, Message and Metadata records in file order, up to a torn tail."""
+    with path.open("rb") as f:
+        records = StreamReader(f, validate_crcs=True).records
         while True:
             try:
-                schema, channel, msg = next(it)
+                rec = next(records)
             except StopIteration:
                 report.complete = True
                 return
+            except RecordLengthLimitExceeded:
+                # foxglove-sdk writes a chunk's length when the chunk closes: a kill leaves 2⁶⁴−1.
+                report.error = "truncated: an unfinished chunk at the end (the writer stopped mid-chunk)"
+                return
             except EndOfFile as e:
-                report.error = f"truncated: {e or 'end of file inside a record'}"
+                report.error = f"truncated: {str(e) or 'the file ends inside a record'}"
                 return
             except Exception as e:  # noqa: BLE001 - torn record, bad CRC, zstd error: a crash's tail
                 report.error = f"{type(e).__name__}: {e}"
                 return
-            if channel.message_encoding == "cdr" and schema is not None and schema.name == "std_msgs/msg/String":
-                data: Any = decode_cdr_string(msg.data)
-            else:
-                decoder = factory.decoder_for(channel.message_encoding, schema)
-                data = decoder(msg.data) if decoder is not None else msg.data
-            report.messages += 1
-            yield RunMessage(channel.topic, msg.log_time, schema.name if schema else "", data)
+            if isinstance(rec, (Schema, Channel, Message, Metadata)):
+                yield rec
+
+
+def _iter_raw(path: Path, topics: set[str] | None, report: ReadReport) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    for rec in _iter_records(path, report):
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            channels[rec.id] = rec
+        elif isinstance(rec, Message):
+            ch = channels.get(rec.channel_id)
+            if ch is None:
+                report.error = f"message on unknown channel {rec.channel_id}"
+                return
+            if topics is None or ch.topic in topics:
+                yield schemas.get(ch.schema_id), ch, rec
+
+
+def iter_run(path: str | Path, topics: set[str] | None = None, report: ReadReport | None = None) -> Iterator[RunMessage]:
+    """Decoded messages in file order. Stops quietly at a torn tail (see `report.error`)."""
+    p = check_mcap(path)
+    report = report if report is not None else ReadReport()
+    factory = DecoderFactory()
+    decoders: dict[int, Callable[[bytes], Any] | None] = {}
+    for schema, channel, msg in _iter_raw(p, topics, report):
+        if channel.message_encoding == "cdr" and schema is not None and schema.name == "std_msgs/msg/String":
+            data: Any = decode_cdr_string(msg.data)
+        else:
+            if channel.id not in decoders:
+                decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+            dec = decoders[channel.id]
+            data = dec(msg.data) if dec is not None else msg.data
+        report.messages += 1
+        yield RunMessage(channel.topic, msg.log_time, schema.name if schema else "", data)
+
+
+def salvage(src: str | Path, dst: str | Path) -> ReadReport:
+    """Copy every readable record of a (crash-truncated) log into a finalised MCAP at `dst`.
+
+    Bytes are copied, not re-encoded. Tools that insist on a summary and complete message
+    indexes (Rerun's importer drops channels whose index was torn) read the copy instead.
+    """
+    p = check_mcap(src)
+    report = ReadReport()
+    with open(dst, "wb") as out:
+        w = Writer(out, compression=CompressionType.ZSTD)
+        w.start(profile="", library="capm-field salvage")
+        schema_ids: dict[int, int] = {}
+        channel_ids: dict[int, int] = {}
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        for rec in _iter_records(p, report):
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Message) and rec.channel_id in channels:
+                if rec.channel_id not in channel_ids:
+                    ch = channels[rec.channel_id]
+                    sid = 0
+                    if ch.schema_id in schemas:
+                        if ch.schema_id not in schema_ids:
+                            s = schemas[ch.schema_id]
+                            schema_ids[ch.schema_id] = w.register_schema(s.name, s.encoding, s.data)
+                        sid = schema_ids[ch.schema_id]
+                    channel_ids[rec.channel_id] = w.register_channel(ch.topic, ch.message_encoding, sid, dict(ch.metadata))
+                w.add_message(channel_ids[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence)
+                report.messages += 1
+        w.finish()
+    return report

@@ -1,0 +1,95 @@
+"""`capm-field review`: run logs (complete and crash-truncated) → real Rerun recordings (.rrd)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from rerun.chunk import RrdReader
+
+from capm_field import cli
+from capm_field.camera import PinholeCamera
+from capm_field.config import CameraConfig
+from mission.runlog import RunLog
+from mission.runlog_synth import synthetic_mission
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def run_mcap(tmp_path_factory, robot) -> Path:
+    path = tmp_path_factory.mktemp("review") / "run.mcap"
+    cam = PinholeCamera.from_config(CameraConfig())
+    with RunLog(path, robot, cam, bench=True) as log:
+        synthetic_mission(log, n_targets=3, seconds_per_target=2.0, images_per_target=1, width=640, height=360)
+    return path
+
+
+def rrd_contents(path: Path) -> dict[str, set[str]]:
+    """entity path -> component names, over the recording in the .rrd."""
+    out: dict[str, set[str]] = {}
+    for chunk in RrdReader(path).stream():
+        out.setdefault(chunk.entity_path, set()).update(chunk.to_record_batch().schema.names)
+    return out
+
+
+def test_review_rrd_has_image_transforms_series_and_overlays(run_mcap, tmp_path):
+    out = tmp_path / "out.rrd"
+    # The real console entry point, in a subprocess (no viewer is started with --rrd).
+    proc = subprocess.run(
+        [sys.executable, "-m", "capm_field.cli", "review", str(run_mcap), "--rrd", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "wrote" in proc.stdout
+    reader = RrdReader(out)
+    assert reader.recordings() and reader.blueprints()  # the layout travels with the data
+    ents = rrd_contents(out)
+    assert "EncodedImage:blob" in ents["/camera/image"]
+    assert "Pinhole:image_from_camera" in ents["/camera/calibration"]
+    assert {"Transform3D:child_frame", "Transform3D:parent_frame"} <= ents["/tf"]
+    assert "TextLog:text" in ents["/log"]
+    assert any(e.startswith("/z1_description") for e in ents)  # URDF from /robot_description
+    for series in ("/plots/igniter/flame_on", "/plots/energy/total"):
+        assert "Scalars:scalars" in ents[series]
+    assert "SeriesLines:names" in ents["/plots/igniter/flame_on"]
+    assert "LineStrips3D:strips" in ents["/review/troi/t00"]
+    assert "LineStrips3D:strips" in ents["/review/regions/t00/R_o"]
+    assert "Points3D:labels" in ents["/review/key_states/t00"]
+    assert "Points3D:positions" in ents["/review/detection/t00"]
+    assert "Points2D:positions" in ents["/camera/image/detection"]
+    assert "message_log_time" in ents["/review/key_states/t00"]  # same timeline as the native import
+
+
+def test_review_opens_a_truncated_crash_file(run_mcap, tmp_path):
+    data = run_mcap.read_bytes()
+    cut = tmp_path / "crash.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])  # no summary, no footer, a torn chunk
+    out = tmp_path / "crash.rrd"
+    assert cli.main(["review", str(cut), "--rrd", str(out)]) == 0
+    ents = rrd_contents(out)
+    assert "Transform3D:child_frame" in ents["/tf"]
+    assert "Scalars:scalars" in ents["/plots/igniter/flame_on"]
+
+
+@pytest.mark.parametrize(
+    "content",
+    [None, b"", b"hello, not an mcap file\n", b"\x89MCAP0\r\n" + b"\xff" * 64],
+    ids=["missing", "empty", "text", "mcap-magic-then-garbage"],
+)
+def test_bad_files_exit_2_with_one_line(tmp_path, capsys, content):
+    path = tmp_path / "bad.mcap"
+    if content is not None:
+        path.write_bytes(content)
+    assert cli.main(["review", str(path), "--rrd", str(tmp_path / "x.rrd")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("capm-field review: error:") and "\n" not in err and "Traceback" not in err
+
+
+def test_rerun_binary_is_found():
+    from mission.review import _rerun_binary
+
+    assert shutil.which(_rerun_binary()) or Path(_rerun_binary()).is_file()
