@@ -139,9 +139,10 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
         tid = m.target_id
         ro = [circle(m.troi.x, m.troi.y, r, z=0.006) for a in m.ro for r in (a.r_inner, a.r_outer) if r > 0]
         lg.log(f"/review/regions/{tid}/R_o", rr.LineStrips3D(ro or [np.zeros((0, 3))], colors=[COLORS["ro"]], radii=[0.003]))
-        if m.HasField("mpoi"):
-            rm = [circle(m.mpoi.x, m.mpoi.y, r, z=0.008) for a in m.rm for r in (a.r_inner, a.r_outer) if r > 0]
-            lg.log(f"/review/regions/{tid}/R_m", rr.LineStrips3D(rm or [np.zeros((0, 3))], colors=[COLORS["rm"]], radii=[0.003]))
+        # R_m around the MPOI once known, before that around X_w (the planners' assumption).
+        cx, cy = (m.mpoi.x, m.mpoi.y) if m.HasField("mpoi") else (m.troi.x, m.troi.y)
+        rm = [circle(cx, cy, r, z=0.008) for a in m.rm for r in (a.r_inner, a.r_outer) if r > 0]
+        lg.log(f"/review/regions/{tid}/R_m", rr.LineStrips3D(rm or [np.zeros((0, 3))], colors=[COLORS["rm"]], radii=[0.003]))
 
     for t, m in msgs[TOPICS["plan"]]:
         lg.at(t)
@@ -277,13 +278,19 @@ def _rerun_binary() -> str:
 
 
 def _run_child(cmd: list[str]) -> int:
-    """Run the viewer until it exits or Ctrl-C; then stop it and its process group (ours)."""
+    """Run the viewer until it exits, Ctrl-C or SIGTERM; then stop it and its process group (ours)."""
+
+    def _terminate(signum, frame):  # SIGTERM → the same clean path as Ctrl-C
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, _terminate)
     proc = subprocess.Popen(cmd, start_new_session=True)
     try:
         return proc.wait()
     except KeyboardInterrupt:
         return 0
     finally:
+        signal.signal(signal.SIGTERM, previous)
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGTERM)  # the group we created for this child only
             try:
@@ -303,6 +310,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     mcap = check_mcap(args.run)
+    native = not args.rrd and not args.web
+    if native and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise UserError("no display for the native viewer (DISPLAY/WAYLAND_DISPLAY unset): use --rrd FILE or --web")
     data = load_run(mcap)
     if data.report.error:
         print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {data.report.error}", file=sys.stderr)
@@ -315,8 +325,10 @@ def main(argv: list[str] | None = None) -> int:
         out = args.rrd or Path(tmp) / "run.rrd"
         write_rrd(mcap, out, data)
         if args.web:
-            print(f"web viewer: http://127.0.0.1:{args.web_port}  (Ctrl-C to stop)")
+            url = f"rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{args.grpc_port}%2Fproxy"
+            print(f"web viewer (loopback only): http://127.0.0.1:{args.web_port}/?url={url}  (Ctrl-C to stop)", flush=True)
             cmd = [_rerun_binary(), "--web-viewer", "--bind", "127.0.0.1", "--port", str(args.grpc_port), "--web-viewer-port", str(args.web_port), str(out)]
         else:
-            cmd = [_rerun_binary(), str(out)]
+            # The native viewer also hosts a gRPC server (0.0.0.0 by default): keep it on loopback.
+            cmd = [_rerun_binary(), "--bind", "127.0.0.1", str(out)]
         return _run_child(cmd)

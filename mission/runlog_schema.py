@@ -77,7 +77,7 @@ MESSAGES: dict[str, list[tuple[str, str, bool]]] = {
         ("troi", "Troi", False),
         ("ro", "Annulus", True),  # R_o: annuli around X_w
         ("mpoi", "Point2", False),
-        ("rm", "Annulus", True),  # R_m: annuli around the MPOI
+        ("rm", "Annulus", True),  # R_m: annuli around the MPOI (around X_w while `mpoi` is unset)
         ("frame_id", "string", False),
     ],
     "Energy": [
