@@ -100,6 +100,8 @@ class Roi:
         c = -np.linalg.solve(M, self.conic[:2, 2])
         k = -(np.r_[c, 1.0] @ self.conic @ np.r_[c, 1.0])
         evals, evecs = np.linalg.eigh(M / k)
+        if not (k > 0 and np.all(evals > 0)):
+            raise ValueError("conic has no interior")
         axes = 1 / np.sqrt(evals)
         ang = math.degrees(math.atan2(evecs[1, 0], evecs[0, 0]))
         return c, axes, ang
