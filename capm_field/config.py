@@ -43,6 +43,9 @@ class BodyConfig(_Frozen):
     keepout_depth: float | None = Field(
         None, ge=0.0, description="cylinder extends this far below the arm base (m); None: down to the ground (legs)"
     )
+    position_tolerance: float = Field(
+        0.015, ge=0.0, description="expected body placement error (m); planned stops keep this far inside R_o and R_m"
+    )
     max_speed: float = Field(0.8, gt=0.0, description="body translation speed limit (m/s)")
     max_yaw_rate: float = Field(1.0, gt=0.0, description="body yaw rate limit (rad/s)")
     max_accel: float = Field(0.8, gt=0.0, description="body acceleration limit (m/s^2)")

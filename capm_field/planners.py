@@ -53,11 +53,11 @@ class PlanningCore:
         self.maps = maps
         self.task = task
         self.regions = Regions(robot, maps)
-        # Plan inside the maps so planned stops are not on bin edges: a quarter bin for R_m, and
-        # 1.5 bins for R_o, whose inner edge (view rays grazing the body) is the least sharp
-        # and whose map is looked up at the nearest mapped TROI radius.
-        self.margin = 0.25 * maps.manip.step
-        self.margin_o = 1.5 * maps.manip.step
+        # Plan inside the maps: the body's placement error, plus a quarter bin for R_m and 1.5
+        # bins for R_o, whose inner edge (view rays grazing the body) is the least sharp.
+        tol = robot.cfg.body.position_tolerance
+        self.margin = 0.25 * maps.manip.step + tol
+        self.margin_o = 1.5 * maps.manip.step + tol
         self.rm: RadialSet = maps.manip.radial_set(None).shrink(self.margin)
         if self.rm.empty:
             raise UserError("R_m is empty: the nozzle cannot reach the ground within [ε_min, ε_max] from any pose (check robot and task)")

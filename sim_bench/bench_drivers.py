@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capm_field.camera import PinholeCamera
 from capm_field.config import TaskConfig
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
@@ -83,11 +82,10 @@ def open_bench_drivers(robot: RobotModel, task: TaskConfig, trois: list[TROI], s
     body = SimBodyDriver(SimBody(robot.cfg.body, clock=clock, seed=seed, pose=start))
     arm = SimArmDriver(robot, clock=clock)
     igniter = SimIgniterDriver(clock=clock)
-    camera_model = PinholeCamera.from_config(robot.cfg.camera)
 
     def camera_pose() -> np.ndarray:
         return robot.T_field_base(body.state().pose) @ arm.state().camera_pose
 
-    camera = SimCamera(scene, camera_pose, camera_model, clock=clock)
+    camera = SimCamera(scene, camera_pose, robot.cfg.camera, clock_ns=clock.now_ns)
     world = BenchWorld(clock, truth, scene)
     return DriverSet(body, arm, igniter, camera, extras={"world": world})
