@@ -1,0 +1,109 @@
+"""`capm-field bench-mission MISSION.yaml [--summary RUN/summary.json]`: the planner bench on a
+mission's own geometry, to check a run against it.
+
+The TROIs are taken in the executive's order, each with the executive's x_k0 (the previous
+x_kmax, or the start) and x_kmax; the MPOI is drawn `--trials` times from the same distribution as
+the bench world (N(X_w, Σ_w), restricted to the TROI unless the mission says otherwise). Prints,
+per target and overall, the planner's mean energy and success rate with their Monte Carlo
+standard errors and, with --summary, the run's figures and their difference in standard errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from capm_field.config import ReachabilityConfig
+from capm_field.errors import UserError
+from capm_field.geometry import SE2
+from capm_field.planners import PlanningCore, make_planner
+from capm_field.reachability import get_maps
+from capm_field.robot_model import RobotModel
+
+from .config import load_mission
+from .ordering import order_trois
+
+
+def _x_kmax(ordered, i: int, end: SE2) -> SE2:
+    if i + 1 >= len(ordered):
+        return end
+    a, b = np.array(ordered[i].xy), np.array(ordered[i + 1].xy)
+    m = 0.5 * (a + b)
+    return SE2(float(m[0]), float(m[1]), math.atan2(b[1] - a[1], b[0] - a[0]))
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="capm-field bench-mission", description=__doc__.split("\n")[0])
+    ap.add_argument("mission")
+    ap.add_argument("--trials", type=int, default=2000, help="MPOI draws per target")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--summary", help="a run's summary.json to compare against")
+    ap.add_argument("--json", metavar="FILE")
+    a = ap.parse_args(argv)
+    if a.trials < 2:
+        raise UserError(f"--trials must be ≥ 2, got {a.trials}")
+    mission, trois = load_mission(a.mission)
+    robot = RobotModel(mission.robot)
+    core = PlanningCore(robot, get_maps(robot, mission.task, ReachabilityConfig()), mission.task)
+    ordered = order_trois(trois, mission.start.se2().xy, mission.end_pose().xy)
+    in_troi = getattr(mission.drivers, "mpoi_in_troi", True)
+    rng = np.random.default_rng(a.seed)
+    rows = []
+    here = mission.start.se2()
+    for i, t in enumerate(ordered):
+        end = _x_kmax(ordered, i, mission.end_pose())
+        planner = make_planner(mission.planner, core, seed=a.seed + i)
+        plan = planner.plan(here, end, t)
+        s = mission.task.sigma(t.r)
+        costs, oks = [], []
+        while len(costs) < a.trials:
+            d = rng.normal(scale=s, size=2)
+            if in_troi and math.hypot(*d) > t.r:
+                continue
+            out = planner.after_observation(plan, np.array(t.xy) + d)
+            costs.append(out.cost)
+            oks.append(out.success)
+        costs_a = np.array(costs)
+        rows.append({"id": t.id, "energy": float(costs_a.mean()), "energy_sd": float(costs_a.std(ddof=1)), "success_rate": float(np.mean(oks))})
+        here = end
+    n = len(rows)
+    mean_e = float(np.mean([r["energy"] for r in rows]))
+    # Standard error of a single run's mean energy per weed (one MPOI draw per target).
+    se_run = float(math.sqrt(sum(r["energy_sd"] ** 2 for r in rows)) / n)
+    succ = float(np.mean([r["success_rate"] for r in rows]))
+    print(f"planner {mission.planner}: {n} targets, {a.trials} MPOI draws each")
+    for r in rows:
+        print(f"  {r['id']:<8} E[c] {r['energy']:6.3f} (sd {r['energy_sd']:.3f})  success {r['success_rate'] * 100:5.1f}%")
+    print(f"bench: energy per weed {mean_e:.3f} (a single run's mean has s.e. {se_run:.3f}), success {succ * 100:.1f}%")
+    result = {"planner": mission.planner, "targets": rows, "energy_per_weed": mean_e, "run_mean_se": se_run, "success_rate": succ}
+    if a.summary:
+        p = Path(a.summary)
+        if not p.is_file():
+            raise UserError(f"--summary: file not found: {p}")
+        s = json.loads(p.read_text())
+        flamed = {t["id"]: t for t in s["targets"] if t["flamed"]}
+        same = [r for r in rows if r["id"] in flamed]  # compare like with like: the targets the run flamed
+        if not same:
+            raise UserError("--summary: the run flamed no target; nothing to compare")
+        bench_e = float(np.mean([r["energy"] for r in same]))
+        se = float(math.sqrt(sum(r["energy_sd"] ** 2 for r in same)) / len(same))
+        run_e = float(np.mean([flamed[r["id"]]["energy"] for r in same]))
+        z = (run_e - bench_e) / se if se > 1e-9 else math.nan
+        print(
+            f"run:   energy per flamed weed {run_e:.3f} vs bench {bench_e:.3f} on the same {len(same)} targets "
+            f"(difference {run_e - bench_e:+.3f}, s.e. {se:.3f}), success {s['success_rate'] * 100:.1f}% "
+            f"({len(flamed)}/{len(s['targets'])} flamed)"
+        )
+        result.update({"run_energy_per_weed": run_e, "z": z, "run_success_rate": s["success_rate"]})
+    if a.json:
+        Path(a.json).write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main(sys.argv[1:]))
