@@ -20,7 +20,7 @@ import numpy as np
 from .config import TaskConfig
 from .reachability import RadialSet
 
-_N_ANGLES = 48
+_N_ANGLES = 24
 
 
 def seg_point_dist(P: np.ndarray, Q: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -58,20 +58,22 @@ def _first_entry(P: np.ndarray, Q: np.ndarray, X: np.ndarray, a: float, b: float
 
 
 def _circle_search(P: np.ndarray, E: np.ndarray, X: np.ndarray, radius: float, task: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
-    """min over points C on the circle (X, radius) of D(P, C) + D(C, E); returns (value, C)."""
+    """min over points C on the circle (X, radius) of D(P, C) + D(C, E); returns (value, C).
+    P: (n, 2); X: (2,) or (n, 2) (one circle centre per row)."""
+    X = np.broadcast_to(np.asarray(X, dtype=float), P.shape)
     th = np.linspace(-math.pi, math.pi, _N_ANGLES, endpoint=False)
-    ring = X + radius * np.stack([np.cos(th), np.sin(th)], 1)  # (m, 2)
-    v = _trav(P[:, None, :] - ring[None], task) + _trav(ring[None] - E, task)
+    ring = X[:, None, :] + radius * np.stack([np.cos(th), np.sin(th)], 1)[None]  # (n, m, 2)
+    v = _trav(P[:, None, :] - ring, task) + _trav(ring - E, task)
     i = np.argmin(v, axis=1)
     best_th = th[i]
     step = 2 * math.pi / _N_ANGLES
-    for _ in range(3):  # local refinement around the best angle
-        loc = best_th[:, None] + np.linspace(-step, step, 9)[None]
-        C = X + radius * np.stack([np.cos(loc), np.sin(loc)], -1)
+    for _ in range(4):  # local refinement around the best angle
+        loc = best_th[:, None] + np.linspace(-step, step, 7)[None]
+        C = X[:, None, :] + radius * np.stack([np.cos(loc), np.sin(loc)], -1)
         v = _trav(P[:, None, :] - C, task) + _trav(C - E, task)
         j = np.argmin(v, axis=1)
         best_th = loc[np.arange(len(P)), j]
-        step /= 4
+        step /= 3
     C = X + radius * np.stack([np.cos(best_th), np.sin(best_th)], -1)
     return _trav(P - C, task) + _trav(C - E, task), C
 
@@ -84,17 +86,16 @@ def _trav(d: np.ndarray, task: TaskConfig) -> np.ndarray:
 def via_cost(P: np.ndarray, E: np.ndarray, X: np.ndarray, rset: RadialSet, task: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
     """Lower-branch cost c_l = c(P, P3) + c(P3, E) minimised over P3 ∈ annulus(X, rset), for each P (n, 2).
 
-    The reposition P → P3 always counts as a move; P3 → E counts unless P3 = E.
-    Returns (c_l (n,), P3 (n, 2)).
+    X is the annulus centre, (2,) or one per row (n, 2). The reposition P → P3 always counts as
+    a move; P3 → E counts unless P3 = E. Returns (c_l (n,), P3 (n, 2)).
     """
     P = np.atleast_2d(np.asarray(P, dtype=float))
     E = np.asarray(E, dtype=float)
-    X = np.asarray(X, dtype=float)
+    X = np.broadcast_to(np.asarray(X, dtype=float), P.shape)
     g = task.gamma
-    best = np.full(len(P), np.inf)
     best_p3 = np.tile(E, (len(P), 1))
-    if rset.contains(np.linalg.norm(E - X)):  # stop at E itself: P → E then flame, no last move
-        best = 1.0 + g * _trav(E - P, task)
+    # Stop at E itself when E is in the annulus: P → E then flame, no last move.
+    best = np.where(rset.contains(np.linalg.norm(E - X, axis=1)), 1.0 + g * _trav(E - P, task), np.inf)
     for a, b in rset.intervals:
         if task.distance_form == "squared":
             M = 0.5 * (P + E)
@@ -110,7 +111,7 @@ def via_cost(P: np.ndarray, E: np.ndarray, X: np.ndarray, rset: RadialSet, task:
             val = np.full(len(P), np.inf)
             P3 = np.zeros_like(P)
             if hits.any():
-                P3[hits] = _first_entry(P[hits], np.broadcast_to(E, P[hits].shape), X, a, b)
+                P3[hits] = _first_entry(P[hits], np.broadcast_to(E, P[hits].shape), X[hits], a, b)
                 val[hits] = 2.0 + g * np.linalg.norm(E - P[hits], axis=1)
             miss = ~hits
             if miss.any():
@@ -119,7 +120,7 @@ def via_cost(P: np.ndarray, E: np.ndarray, X: np.ndarray, rset: RadialSet, task:
                 for radius, sel in ((a, inner), (b, ~inner)):
                     if sel.any() and radius > 0:
                         idx = np.flatnonzero(miss)[sel]
-                        v, C = _circle_search(P[idx], E, X, radius, task)
+                        v, C = _circle_search(P[idx], E, X[idx], radius, task)
                         val[idx] = 2.0 + g * v
                         P3[idx] = C
         better = val < best

@@ -28,7 +28,7 @@ from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, buil
 from .errors import UserError
 from .geometry import SE2
 from .keystates import TROI
-from .planners import PLANNERS, PlannerOptions, PlanningCore, make_planner
+from .planners import ALL_PLANNERS, PLANNERS, PlannerOptions, PlanningCore, make_planner
 from .reachability import get_maps
 from .robot_model import RobotModel
 
@@ -193,7 +193,7 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="capm-field bench", description=__doc__.split("\n")[0])
     ap.add_argument("--trials", type=int, default=1000, help="TROIs per path length (paper: N = 1000)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--planners", default="a,b,c", help="comma-separated subset of a,b,c")
+    ap.add_argument("--planners", default="a,b,c", help="comma-separated subset of a,b,c,cstar")
     ap.add_argument("--lengths", default=",".join(str(x) for x in PATH_LENGTHS), help="path lengths (m)")
     ap.add_argument("--span", choices=("midpoint", "random"), default="midpoint", help="where X_w lies on the path")
     ap.add_argument("--gamma", type=float, default=DEFAULT_GAMMA, help="γ (the paper prints 2; 0.5 reproduces Table I)")
@@ -235,8 +235,8 @@ def main(argv: list[str]) -> int:
         raise UserError(f"--gamma must be ≥ 0, got {a.gamma}")
     planners = tuple(p.strip() for p in a.planners.split(",") if p.strip())
     for p in planners:
-        if p not in PLANNERS:
-            raise UserError(f"unknown planner {p!r} in --planners; choose from {', '.join(PLANNERS)}")
+        if p not in ALL_PLANNERS:
+            raise UserError(f"unknown planner {p!r} in --planners; choose from {', '.join(ALL_PLANNERS)}")
     try:
         lengths = tuple(float(x) for x in a.lengths.split(","))
     except ValueError as e:

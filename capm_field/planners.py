@@ -33,7 +33,8 @@ from .probability import p_closed_form
 from .reachability import RadialSet, ReachabilityMaps, Regions
 from .robot_model import RobotModel
 
-PLANNERS = ("a", "b", "c")
+PLANNERS = ("a", "b", "c")  # the paper's three (Table I)
+ALL_PLANNERS = ("a", "b", "c", "cstar")
 Tiebreak = Literal["first", "uniform", "nearest"]
 
 
@@ -110,8 +111,41 @@ class BasePlanner:
     def _sigma(self, troi: TROI) -> float:
         return self.task.sigma(troi.r)
 
-    def _optimise_k1(self, S: np.ndarray, E: np.ndarray, X: np.ndarray, ro: RadialSet, sigma: float, use_p: bool) -> tuple[np.ndarray, dict]:
-        """argmin over P1 ∈ annulus(X, ro) of c_0 + p·c_u + (1−p)·c_l (use_p) or c_0 + c_l."""
+    def _optimise_k1(self, X: np.ndarray, ro: RadialSet, objective, coarse_objective=None, seeds: int = 1) -> tuple[np.ndarray, dict]:
+        """argmin over P1 ∈ annulus(X, ro) of objective(ρ, α) → (values, terms): a coarse polar grid
+        (ranked by `coarse_objective` when the objective is expensive), then local refinement of
+        the best `seeds` grid points."""
+        best_val, best = math.inf, None
+        alphas = np.linspace(-math.pi, math.pi, self.opt.coarse_angles, endpoint=False)
+        for a, b in ro.intervals:
+            R, A = np.meshgrid(np.linspace(a, b, self.opt.coarse_radii), alphas, indexing="ij")
+            rho, alpha = R.ravel(), A.ravel()
+            val, terms = (coarse_objective or objective)(rho, alpha)
+            for i in np.argsort(val)[:seeds]:
+                dr, da = (b - a) / max(self.opt.coarse_radii - 1, 1), 2 * math.pi / self.opt.coarse_angles
+                r0, a0 = rho[i], alpha[i]
+                v_i, t_i = val[i], {k: v[i] for k, v in terms.items()}
+                if coarse_objective is not None:
+                    v, t = objective(np.array([r0]), np.array([a0]))
+                    v_i, t_i = v[0], {k: x[0] for k, x in t.items()}
+                for _ in range(self.opt.refine_rounds):
+                    Rr, Aa = np.meshgrid(np.clip(r0 + np.linspace(-dr, dr, 7), a, b), a0 + np.linspace(-da, da, 7), indexing="ij")
+                    rr, aa = Rr.ravel(), Aa.ravel()
+                    v, t = objective(rr, aa)
+                    j = int(np.argmin(v))
+                    if v[j] <= v_i:
+                        r0, a0, v_i, t_i = rr[j], aa[j], v[j], {k: x[j] for k, x in t.items()}
+                    dr, da = dr / 3, da / 3
+                if v_i < best_val:
+                    best_val = float(v_i)
+                    best = (np.array([X[0] + r0 * math.cos(a0), X[1] + r0 * math.sin(a0)]), {k: float(x) for k, x in t_i.items()})
+        assert best is not None
+        P1, terms = best
+        terms["objective"] = best_val
+        return P1, terms
+
+    def _paper_objective(self, S: np.ndarray, E: np.ndarray, X: np.ndarray, sigma: float, use_p: bool):
+        """Eq. 11: c_0 + p·c_u + (1 − p)·c_l with c_l against X_w (use_p False: c_0 + c_l, planner b)."""
         g, task, rm = self.task.gamma, self.task, self.core.rm
 
         def objective(rho: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -124,29 +158,7 @@ class BasePlanner:
             cu = 1.0 + g * energy.travel(E - P, task)
             return c0 + p * cu + (1 - p) * cl, {"c0": c0, "cl": cl, "cu": cu, "p": p}
 
-        best_val, best = math.inf, None
-        alphas = np.linspace(-math.pi, math.pi, self.opt.coarse_angles, endpoint=False)
-        for a, b in ro.intervals:
-            R, A = np.meshgrid(np.linspace(a, b, self.opt.coarse_radii), alphas, indexing="ij")
-            rho, alpha = R.ravel(), A.ravel()
-            val, terms = objective(rho, alpha)
-            i = int(np.argmin(val))
-            dr, da = (b - a) / max(self.opt.coarse_radii - 1, 1), 2 * math.pi / self.opt.coarse_angles
-            r0, a0 = rho[i], alpha[i]
-            for _ in range(self.opt.refine_rounds):
-                R, A = np.meshgrid(np.clip(r0 + np.linspace(-dr, dr, 7), a, b), a0 + np.linspace(-da, da, 7), indexing="ij")
-                rho, alpha = R.ravel(), A.ravel()
-                val, terms = objective(rho, alpha)
-                i = int(np.argmin(val))
-                r0, a0 = rho[i], alpha[i]
-                dr, da = dr / 3, da / 3
-            if val[i] < best_val:
-                best_val = float(val[i])
-                best = (np.array([X[0] + r0 * math.cos(a0), X[1] + r0 * math.sin(a0)]), {k: float(v[i]) for k, v in terms.items()})
-        assert best is not None
-        P1, terms = best
-        terms["objective"] = best_val
-        return P1, terms
+        return objective
 
     def _replan_k3(self, P1: np.ndarray, E: np.ndarray, mpoi: np.ndarray) -> np.ndarray:
         """The re-plan: x_b,k3 = argmin c_l s.t. x_b,k3 ∈ R_m(X̄_w)."""
@@ -205,15 +217,22 @@ class DeterministicPlanner(BasePlanner):
 class _ObservingPlanner(BasePlanner):
     use_p = True
 
+    def _objective(self, S: np.ndarray, E: np.ndarray, X: np.ndarray, troi: TROI, sigma: float):
+        return self._paper_objective(S, E, X, sigma, self.use_p)
+
+    def _coarse(self, S: np.ndarray, E: np.ndarray, X: np.ndarray, sigma: float) -> tuple:
+        """(coarse objective, number of refined seeds): the objective itself, one seed."""
+        return None, 1
+
     def plan(self, start: SE2, end: SE2, troi: TROI) -> Plan:
         S, E, X = self.core.base_xy(start), self.core.base_xy(end), np.array(troi.xy)
         ro = self.core.ro(troi.r)
         sigma = self._sigma(troi)
-        P1, terms = self._optimise_k1(S, E, X, ro, sigma, self.use_p)
+        P1, terms = self._optimise_k1(X, ro, self._objective(S, E, X, troi, sigma), *self._coarse(S, E, X, sigma))
         x1 = self.core.facing(P1, X)
         P3 = self._replan_k3(P1, E, X)
         x3 = self.core.facing(P3, X)
-        p = float(p_closed_form(np.linalg.norm(P1 - X), sigma, self.core.rm)) if self.use_p else 0.0
+        p = float(terms.get("p", 0.0))
         r_eff = self.core.effective_radius(troi.r)
         ks = [KeyState("x_k0", start), KeyState("x_b,k1", x1), KeyState("x_e,k2", x1, "observe", troi.xy, r_eff)]
         if self.use_p:
@@ -239,8 +258,69 @@ class CapmPlanner(_ObservingPlanner):
     use_p = True
 
 
+class BayesPlanner(_ObservingPlanner):
+    """c*: x_b,k1 ∈ R_o minimising the true expected cost over the MPOI distribution,
+
+        E[c] = c_0 + E_X̄w[ 1[x_b,k1 ∈ R_m(X̄_w)]·c_u + 1[x_b,k1 ∉ R_m(X̄_w)]·c_l*(x_b,k1, X̄_w) ],
+
+    where c_l* is the cost of the re-plan that will actually happen for that MPOI (min over
+    x_b,k3 ∈ R_m(X̄_w)), not the paper's stand-in c_l against X_w. The expectation is a fixed
+    quasi-Monte-Carlo quadrature (scrambled Sobol, `n_quad` points) of the prior N(X_w, Σ_w),
+    optionally restricted to the TROI (`in_troi`), so plans are deterministic.
+    """
+
+    name = "cstar"
+
+    def __init__(self, core: PlanningCore, options: PlannerOptions | None = None, seed: int = 0, n_quad: int = 32, in_troi: bool = False):
+        super().__init__(core, options, seed)
+        from scipy.stats import qmc
+
+        u = qmc.Sobol(d=2, scramble=True, seed=12345).random(n_quad)
+        self._u = np.clip(u, 1e-6, 1 - 1e-6)
+        self.in_troi = in_troi
+
+    def _coarse(self, S: np.ndarray, E: np.ndarray, X: np.ndarray, sigma: float) -> tuple:
+        # The true expectation is ~30× dearer than eq. 11, whose landscape is close: rank the grid
+        # with eq. 11 and refine its four best points with the true expectation.
+        return self._paper_objective(S, E, X, sigma, True), 4
+
+    def _mpoi_quadrature(self, X: np.ndarray, sigma: float, r_w: float) -> np.ndarray:
+        """Quadrature points of the MPOI prior (polar: Rayleigh radius, uniform angle)."""
+        q = self._u[:, 0]
+        if self.in_troi:  # Rayleigh radius truncated at r_w
+            q = q * (1.0 - math.exp(-(r_w**2) / (2 * sigma**2)))
+        rad = sigma * np.sqrt(-2.0 * np.log1p(-q))
+        ang = 2 * math.pi * self._u[:, 1]
+        return X + np.stack([rad * np.cos(ang), rad * np.sin(ang)], 1)
+
+    def _objective(self, S: np.ndarray, E: np.ndarray, X: np.ndarray, troi: TROI, sigma: float):
+        g, task, rm = self.task.gamma, self.task, self.core.rm
+        M = self._mpoi_quadrature(X, sigma, troi.r)
+        m = len(M)
+
+        def objective(rho: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, dict]:
+            P = X + np.stack([rho * np.cos(alpha), rho * np.sin(alpha)], 1)
+            n = len(P)
+            c0 = 1.0 + g * energy.travel(P - S, task)
+            cu = 1.0 + g * energy.travel(E - P, task)
+            hit = rm.contains(np.linalg.norm(P[:, None, :] - M[None], axis=2))  # (n, m)
+            cost = np.where(hit, cu[:, None], 0.0)
+            miss = np.flatnonzero(~hit.ravel())
+            if len(miss):
+                Pi = np.repeat(P, m, axis=0)[miss]
+                Mi = np.tile(M, (n, 1))[miss]
+                cl, _ = via_cost(Pi, E, Mi, rm, task)
+                flat = cost.ravel()
+                flat[miss] = cl
+                cost = flat.reshape(n, m)
+            p = hit.mean(axis=1)
+            return c0 + cost.mean(axis=1), {"c0": c0, "cu": cu, "p": p}
+
+        return objective
+
+
 def make_planner(name: str, core: PlanningCore, options: PlannerOptions | None = None, seed: int = 0) -> BasePlanner:
-    table = {"a": DeterministicPlanner, "b": DecoupledPlanner, "c": CapmPlanner}
+    table = {"a": DeterministicPlanner, "b": DecoupledPlanner, "c": CapmPlanner, "cstar": BayesPlanner}
     if name not in table:
         raise UserError(f"unknown planner {name!r}; choose from {', '.join(table)}")
     return table[name](core, options, seed)

@@ -123,3 +123,26 @@ def test_bad_planner_and_radius_are_user_errors(core):
         make_planner("z", core)
     with pytest.raises(UserError, match="positive"):
         make_planner("c", core).plan(*_line(3.0), TROI(0, 0, -0.1))
+
+
+def test_bayes_planner_is_no_worse_than_capm_in_expectation(core):
+    """c* minimises the true expected cost; with common MPOI draws its mean must not exceed c's."""
+    rng = np.random.default_rng(9)
+    cstar, capm = make_planner("cstar", core), make_planner("c", core)
+    diffs = []
+    for _ in range(6):
+        X = rng.uniform(0, 3, 2)
+        th = rng.uniform(-math.pi, math.pi)
+        u = np.array([math.cos(th), math.sin(th)])
+        L = rng.uniform(2.75, 4.75)
+        S, E = X - L / 2 * u, X + L / 2 * u
+        troi = TROI(float(X[0]), float(X[1]), float(rng.uniform(0.2, 0.3)))
+        start, end = SE2(S[0], S[1], th), SE2(E[0], E[1], th)
+        p_star, p_c = cstar.plan(start, end, troi), capm.plan(start, end, troi)
+        mpois = X + rng.normal(scale=core.task.sigma(troi.r), size=(1500, 2))
+        cs = np.mean([cstar.after_observation(p_star, m).cost for m in mpois])
+        cc = np.mean([capm.after_observation(p_c, m).cost for m in mpois])
+        assert all(cstar.after_observation(p_star, m).success for m in mpois[:200])
+        diffs.append(cs - cc)
+    assert np.mean(diffs) <= 0.0
+    assert max(diffs) < 0.03  # never clearly worse on any geometry
