@@ -151,23 +151,27 @@ class CanArm(Arm):
     def stream(self, traj: Callable[[float], np.ndarray], duration: float, deadline: float) -> MoveResult | None:
         """Stream traj(t) for t in (0, duration] at the configured rate (absolute-time ticks).
 
+        Trajectory time advances one period per target sent, not with the wall clock: if the
+        host stalls (loaded CPU), the motion pauses instead of jumping ahead, so consecutive
+        targets never differ by more than one period of motion (the gateway faults on jumps).
+        Ticks late by more than 5 periods are skipped, never burst.
         Returns None when the whole trajectory was sent, a failed MoveResult on a gateway fault;
         raises LinkLost / DriverTimeout (after STOP). Stats of the last stream: `last_stream`.
         """
         period = 1.0 / self.cfg.stream_rate_hz
         st = self.last_stream = StreamStats()
         t0 = time.monotonic()
+        tick = t0
         k = 0
         while True:
-            k += 1
-            tick = t0 + k * period
+            tick += period
             now = time.monotonic()
             if tick > now:
                 time.sleep(tick - now)
             elif now - tick > 5 * period:  # badly late: re-anchor instead of bursting
                 st.overruns += 1
-                k = int((now - t0) / period)
-                tick = t0 + k * period
+                tick = now
+            k += 1
             self._check()
             if self.fault is not None:
                 st.duration_s = time.monotonic() - t0

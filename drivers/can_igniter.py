@@ -1,7 +1,7 @@
 """`CanIgniter`: the flame igniter board over CAN (protocol: docs/protocols/can.md).
 
 Safety design: the board keeps the valve open only while valid IGNITE keep-alives arrive
-(gap > 90 ms -> off). This adapter sends them at a fixed rate from inside `ignite()` and only
+(gap > 80 ms -> off). This adapter sends them at a fixed rate from inside `ignite()` and only
 while `permit()` is True, the flame hold time has not elapsed, the link is up and the board
 reports no fault; `permit()` is re-checked every `poll_period` (5 ms). EXTINGUISH is sent on
 every exit path of `ignite()` (finally), by `disarm()` and by `close()`; if the host freezes

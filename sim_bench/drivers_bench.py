@@ -92,7 +92,7 @@ def measure_igniter_cutoff(trials: int = 10, hold_s: float = 0.1) -> dict:
     host = RawHost(bench.bus)
     host_ms, board_ms = [], []
     try:
-        ka = 1.0 / 25.0
+        ka = 1.0 / 50.0
         for _ in range(trials):
             host.ign(IGN_ARM)
             if host.wait_ign(lambda s: s["Armed"] == 1, 1.0) is None:

@@ -2,7 +2,7 @@
 
 `IgniterBoard` is the board's firmware logic, the contract a real board must meet:
 * it opens the valve and sparks only when ARMED, fault-free, fuelled, with the host present,
-  and only while IGNITE keep-alives keep arriving: a gap > `keepalive_timeout` (default 90 ms,
+  and only while IGNITE keep-alives keep arriving: a gap > `keepalive_timeout` (default 80 ms,
   so the flame is off within 100 ms of the last keep-alive), a rejected command frame (bad
   checksum, stale/repeated counter, wrong length) or host heartbeat loss closes the valve;
 * an ignition trial is bounded (`trial_time`): no flame by then latches IGNITION_FAILED;
@@ -25,7 +25,7 @@ from .sim_clock import SimClock
 
 @dataclass(frozen=True)
 class IgniterParams:
-    keepalive_timeout: float = 0.09  # s without a valid IGNITE -> valve shut
+    keepalive_timeout: float = 0.08  # s without a valid IGNITE -> valve shut
     light_delay: float = 0.12  # s from the first IGNITE to a detected flame
     trial_time: float = 0.5  # s: no flame by then -> IGNITION_FAILED (latched)
     fuel_per_s: float = 1.0 / 600.0  # tank fraction burnt per second of flame (10 min tank)
@@ -153,7 +153,7 @@ class SimIgniterDriver(Igniter):
         self,
         board: IgniterBoard | None = None,
         clock: SimClock | None = None,
-        keepalive_rate_hz: float = 25.0,
+        keepalive_rate_hz: float = 50.0,
         poll_period: float = 0.005,
     ) -> None:
         self.board = board or IgniterBoard()

@@ -31,13 +31,13 @@ class CanArmConfig(_Frozen):
     at_target_tol: float = Field(2e-3, gt=0.0, description="joint error (rad) at which a move counts as arrived")
     enable_timeout: float = Field(0.5, gt=0.0, description="wait for the gateway to report ENABLED (s)")
     max_counter_jump: int = Field(3, ge=1, le=14, description="largest accepted counter step (>1: frames lost)")
-    state_timeout: float = Field(0.1, gt=0.0, description="joint state older than this during a move -> STOP, 'state_stale' (s)")
+    state_timeout: float = Field(0.25, gt=0.0, description="joint state older than this during a move -> STOP, 'state_stale' (s)")
 
 
 class CanIgniterConfig(_Frozen):
     bus: CanBusConfig = Field(default_factory=CanBusConfig)
     heartbeat: HeartbeatConfig = Field(default_factory=HeartbeatConfig)
-    keepalive_rate_hz: float = Field(25.0, gt=0.0, le=200.0, description="IGNITE keep-alive rate while the permit holds")
+    keepalive_rate_hz: float = Field(50.0, gt=0.0, le=200.0, description="IGNITE keep-alive rate while the permit holds")
     poll_period: float = Field(0.005, gt=0.0, le=0.02, description="how often ignite() re-checks permit() and status (s)")
-    status_timeout: float = Field(0.1, gt=0.0, description="igniter status older than this during ignite() -> off, 'status_stale' (s)")
+    status_timeout: float = Field(0.25, gt=0.0, description="igniter status older than this during ignite() -> off, 'status_stale' (s)")
     max_counter_jump: int = Field(3, ge=1, le=14)

@@ -55,12 +55,12 @@ def rig(request, robot):
         return
     from sim_bench.can_rig import CanBench
 
-    bench = CanBench(robot=robot, with_igniter=False, heartbeat_timeout=0.2)
+    bench = CanBench(robot=robot, with_igniter=False, heartbeat_timeout=0.3)
     rs = bench.robot_side
 
     def lose() -> None:
         rs.faults.bus_off = True
-        time.sleep(0.35)  # > heartbeat consumer timeout
+        time.sleep(0.45)  # > heartbeat consumer timeout
 
     try:
         yield Rig(bench.arm, rs.arm, lose, lambda: time.sleep(0.03), rs.lock)

@@ -36,12 +36,12 @@ def rig(request):
         return
     from sim_bench.can_rig import CanBench
 
-    bench = CanBench(with_arm=False, heartbeat_timeout=0.2)
+    bench = CanBench(with_arm=False, heartbeat_timeout=0.3)
     rs = bench.robot_side
 
     def lose() -> None:
         rs.faults.bus_off = True
-        time.sleep(0.3)  # > heartbeat consumer timeout
+        time.sleep(0.45)  # > heartbeat consumer timeout
 
     try:
         yield Rig(bench.igniter, rs.board, time.monotonic, lose, lambda: time.sleep(0.03))
