@@ -252,7 +252,7 @@ class CanRobotSide:
     def _arm_status(self) -> tuple:
         a = self.arm
         mode = ARM_MODE_CODES[a.mode]
-        return (mode, int(a.enabled), int(a.moving), int(a.stowed), ARM_FAULT_CODES.get(a.fault, 0) if a.mode == FAULT else 0,
+        return (mode, int(a.enabled), int(a.moving), int(a.stowed), ARM_FAULT_CODES.get(a.fault, 4) if a.mode == FAULT else 0,  # unknown code -> DRIVE_FAULT
                 self.arm_rx.stats.rejected_total & 0xFF)
 
     def _ign_status(self) -> tuple:

@@ -44,7 +44,7 @@ IGN_EVENTS = {0: None, 1: "keepalive_timeout", 2: "bad_frame", 3: "host_lost", 4
 IGN_EVENT_CODES = {v: k for k, v in IGN_EVENTS.items() if v}
 ARM_MODES = {0: "disabled", 1: "holding", 2: "tracking", 3: "stowing", 4: "fault"}
 ARM_MODE_CODES = {v: k for k, v in ARM_MODES.items()}
-ARM_FAULTS = {0: None, 1: "target_out_of_range", 2: "target_jump", 3: "host_lost", 4: "drive_fault", 5: "estop"}
+ARM_FAULTS = {0: None, 1: "target_out_of_range", 2: "target_jump", 3: "host_lost", 4: "drive_fault", 5: "estop", 6: "overcurrent"}
 ARM_FAULT_CODES = {v: k for k, v in ARM_FAULTS.items() if v}
 
 COUNTER_BYTE, CHECKSUM_BYTE = 6, 7
