@@ -62,14 +62,16 @@ def view_bank(core: PlanningCore) -> ViewBank:
 class FieldOptions:
     n_radii: int = 7  # candidate stops: polar grid over the annulus (radii × angles)
     n_angles: int = 36
-    n_quad: int = 16  # Sobol points of the MPOI prior
+    n_quad: int = 16  # Sobol points of the MPOI prior (the current target)
+    n_quad_inner: int = 8  # … of the next target's prior inside the cost-to-go (a balanced Sobol prefix)
     in_troi: bool = False  # prior restricted to the TROI disc (truncated Rayleigh radius)
     reveal_bonus: float = 0.4  # value of learning one more MPOI in a view (≈ saved reposition)
     cover_bonus: float = 1.0  # value of flaming one more known target from the same stop (one move)
-    group_radius: float = 1.0  # TROIs within this of X_i are candidates for a shared view
-    group_horizon: int = 6  # … among the next this many targets in order
-    group_verify: int = 3  # bank checks per re-plan for shared-view candidates
-    view_neighbours: int = 8  # unknown TROIs checked in the chosen view (reveals for free)
+    group_radius: float = 1.0  # unknown TROIs within this of X_i are candidates for a shared view
+    group_verify: int = 3  # bank checks per re-plan (best candidates first)
+    view_neighbours: int = 8  # at most this many of them (nearest in visiting order)
+    proxy_drho: float = 0.25  # shared-view proxy: |ρ_j − ρ_i| from the stop (m) …
+    proxy_dbearing: float = 0.6  # … and bearing difference (rad), both from the bank's feasible set
     oracle: bool = False
 
 
@@ -87,18 +89,36 @@ def _ring(X: np.ndarray, rs: RadialSet, n_r: int, n_a: int, phase: float = 0.0) 
 def _ann_dist(P: np.ndarray, C: np.ndarray, rs: RadialSet) -> tuple[np.ndarray, np.ndarray]:
     """(distance from P to the annulus rs around C, nearest annulus point), broadcast over P and C."""
     d = P - C
-    r = np.linalg.norm(d, axis=-1)
-    best = np.full(r.shape, np.inf)
-    rc = np.zeros(r.shape)
-    for lo, hi in rs.intervals:
-        c = np.clip(r, lo, hi)
-        dd = np.abs(r - c)
-        better = dd < best
-        best = np.where(better, dd, best)
-        rc = np.where(better, c, rc)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = np.where(r[..., None] > 1e-12, d / r[..., None], np.array([1.0, 0.0]))
-    return best, C + rc[..., None] * u
+    dx, dy = d[..., 0], d[..., 1]
+    r = np.sqrt(dx * dx + dy * dy)
+    if len(rs.intervals) == 1:  # the common case: one interval, no per-interval selection
+        lo, hi = rs.intervals[0]
+        rc = np.clip(r, lo, hi)
+        best = np.abs(r - rc)
+    else:
+        best = np.full(r.shape, np.inf)
+        rc = np.zeros(r.shape)
+        for lo, hi in rs.intervals:
+            c = np.clip(r, lo, hi)
+            dd = np.abs(r - c)
+            better = dd < best
+            best = np.where(better, dd, best)
+            rc = np.where(better, c, rc)
+    s = rc / np.maximum(r, 1e-12)  # P on the centre: any direction will do (x axis)
+    qx = np.where(r > 1e-12, dx * s, rc)
+    qy = dy * s
+    C = np.broadcast_to(C, d.shape)
+    return best, np.stack([C[..., 0] + qx, C[..., 1] + qy], axis=-1)
+
+
+def _ann_gap(P: np.ndarray, C: np.ndarray, rs: RadialSet) -> np.ndarray:
+    """Distance from P to the annulus rs around C only (the cheap half of `_ann_dist`)."""
+    d = P - C
+    r = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+    if len(rs.intervals) == 1:
+        lo, hi = rs.intervals[0]
+        return np.maximum(np.maximum(lo - r, r - hi), 0.0)
+    return np.min([np.maximum(np.maximum(lo - r, r - hi), 0.0) for lo, hi in rs.intervals], axis=0)
 
 
 class FieldPlanner:
@@ -200,13 +220,14 @@ class FieldPlanner:
 
     def _reach_known(self, P: np.ndarray, M: np.ndarray) -> np.ndarray:
         """Cost to a flame stop for a known MPOI M from P: 0 inside R_m(M), else one move + γ·distance."""
-        d, _ = _ann_dist(P, M, self.core.rm)
+        d = _ann_gap(P, M, self.core.rm)
         return np.where(d <= 1e-9, 0.0, 1.0 + self.task.gamma * d)
 
     def _miss_cost(self, P: np.ndarray, tid: str) -> np.ndarray:
-        """E over the prior of tid's MPOI of the reposition after observing from P: P (…, 2) → (…)."""
+        """E over the prior of tid's MPOI of the reposition after observing from P: P (…, 2) → (…).
+        Used inside the cost-to-go, so on the smaller inner quadrature."""
         Mq, _ = self._quadrature(tid)
-        return self._reach_known(P[..., None, :], Mq).mean(axis=-1)
+        return self._reach_known(P[..., None, :], Mq[: self.opt.n_quad_inner]).mean(axis=-1)
 
     def _cost_to_go(self, P: np.ndarray, nxt: str | None, revealed: set[str] = frozenset()) -> np.ndarray:  # type: ignore[assignment]
         """T(P): cost-to-go of the next target (or the end pose) from a flame pose P."""
@@ -319,6 +340,25 @@ class FieldPlanner:
         exp = np.where(hit, T_here[:, None], 1.0 + g * d + T_miss).mean(axis=1)
         return self._move(H, C) + exp, p
 
+    def _reveal_proxy(self, C: np.ndarray, tid: str, near: list[str]) -> np.ndarray:
+        """Predicted co-visible unknown TROIs per candidate stop (n, k) bool: in R_o radially, at
+        about the primary's distance and within the camera's horizontal field of view of it
+        (side by side in the image, the arrangement the bank finds feasible). Verified by the bank."""
+        if not near:
+            return np.zeros((len(C), 0), bool)
+        X = np.array(self.trois[tid].xy)
+        U = np.array([self.trois[j].xy for j in near])
+        d = C[:, None, :] - U[None]
+        rho = np.hypot(d[..., 0], d[..., 1])
+        rho_i = np.linalg.norm(C - X, axis=1)
+        b = np.arctan2(-d[..., 1], -d[..., 0])
+        b_i = np.arctan2(X[1] - C[:, 1], X[0] - C[:, 0])
+        db = np.abs(np.angle(np.exp(1j * (b - b_i[:, None]))))
+        ok = (np.abs(rho - rho_i[:, None]) <= self.opt.proxy_drho) & (db <= self.opt.proxy_dbearing)
+        for k, j in enumerate(near):
+            ok[:, k] &= self.core.ro(self.trois[j].r).contains(rho[:, k])
+        return ok
+
     def _plan_unknown(self, here: SE2, H: np.ndarray, tid: str, nxt: str | None) -> Plan:
         troi = self.trois[tid]
         X = np.array(troi.xy)
@@ -329,30 +369,28 @@ class FieldPlanner:
         if here_in:
             C = np.vstack([H[None], C])
         J, p = self._unknown_objective(H, tid, C, nxt, set())
-        cands: list[tuple[float, np.ndarray, float, tuple[str, ...]]] = [(float(v), C[k], float(p[k]), ()) for k, v in enumerate(J)]
-        cands.sort(key=lambda c: c[0])
-        cands = cands[:4]
-        # (iii) shared views: stops from which the camera can also see a nearby unknown TROI.
-        cands += self._group_candidates(H, tid, nxt)
-        cands.sort(key=lambda c: c[0])
-        chosen = None
-        checks = 0
-        for val, P1, pk, group in cands:
-            if group and checks >= self.opt.group_verify:
-                continue
-            checks += bool(group)
-            view = self._view(P1, tid, group)
+        # (iii) shared views: other unknown TROIs the same image may show (proxy, then the bank).
+        near = [j for j in self.order[1:] if j not in self.known and np.linalg.norm(np.array(self.trois[j].xy) - X) <= self.opt.group_radius]
+        near = near[: self.opt.view_neighbours]
+        co = self._reveal_proxy(C, tid, near)
+        Jp = J - self.opt.reveal_bonus * co.sum(axis=1)
+        order = np.argsort(Jp, kind="stable")
+        best = None
+        for n_check, k in enumerate(order[: self.opt.group_verify]):
+            group = tuple(j for j, c in zip(near, co[k]) if c)
+            view = self._view(C[k], tid, group, near)
             if view is None:
                 continue
             body, gv, seen_ids = view
-            if group and not set(group) <= set(seen_ids):
-                continue
-            chosen = (val, P1, pk, body, gv, seen_ids)
-            break
-        if chosen is None:  # no bank pose verified: fall back to the best single-view stop (R_o map)
-            val, P1, pk, _ = cands[0]
-            chosen = (val, P1, pk, self._body(P1, math.atan2(X[1] - P1[1], X[0] - P1[0])), None, [])
-        val, P1, pk, body, gv, seen_ids = chosen
+            val = float(J[k] - self.opt.reveal_bonus * (len(seen_ids) - 1))
+            if best is None or val < best[0]:
+                best = (val, C[k], float(p[k]), body, gv, seen_ids)
+            if len(seen_ids) - 1 >= len(group):
+                break  # as good as predicted: no later candidate can beat it under the proxy
+        if best is None:  # no bank pose verified: the best single-view stop of the R_o map
+            k = int(np.argmin(J))
+            best = (float(J[k]), C[k], float(p[k]), self._body(C[k], math.atan2(X[1] - C[k][1], X[0] - C[k][0])), None, [tid])
+        val, P1, pk, body, gv, seen_ids = best
         if np.linalg.norm(P1 - H) <= 1e-9 and abs(body.yaw - here.yaw) < 1e-9:
             body = here
         P3, _, _ = self._flame_stop(P1, tid, X, nxt, True)
@@ -377,39 +415,9 @@ class FieldPlanner:
         assert end is not None
         return Plan(self.name, troi, here, end, ks, pk, val, x3, terms)
 
-    def _group_candidates(self, H: np.ndarray, tid: str, nxt: str | None) -> list:
-        """Observation stops for tid that may also see one nearby unknown TROI j (side by side in
-        the image: stops on the perpendicular bisector of X_i X_j, ±30°), scored with j revealed."""
-        X = np.array(self.trois[tid].xy)
-        ro_i = self.core.ro(self.trois[tid].r)
-        out = []
-        horizon = [j for j in self.order[1 : 1 + self.opt.group_horizon] if j not in self.known]
-        for j in horizon:
-            Xj = np.array(self.trois[j].xy)
-            s = float(np.linalg.norm(Xj - X))
-            if s > self.opt.group_radius or s < 1e-6:
-                continue
-            mid = 0.5 * (X + Xj)
-            u = (Xj - X) / s
-            base = math.atan2(u[1], u[0]) + math.pi / 2
-            ang = np.concatenate([base + np.radians([-30, -15, 0, 15, 30]), base + math.pi + np.radians([-30, -15, 0, 15, 30])])
-            rad = np.linspace(0.7, 1.3, 5)
-            A, R = np.meshgrid(ang, rad, indexing="ij")
-            C = mid + np.stack([R.ravel() * np.cos(A.ravel()), R.ravel() * np.sin(A.ravel())], 1)
-            ro_j = self.core.ro(self.trois[j].r)
-            ok = ro_i.contains(np.linalg.norm(C - X, axis=1)) & ro_j.contains(np.linalg.norm(C - Xj, axis=1))
-            C = C[ok]
-            if not len(C):
-                continue
-            J, p = self._unknown_objective(H, tid, C, nxt, {j})
-            J = J - (0.0 if j == nxt else self.opt.reveal_bonus)
-            k = int(np.argmin(J))
-            out.append((float(J[k]), C[k], float(p[k]), (j,)))
-        return out
-
-    def _view(self, P1: np.ndarray, tid: str, group: tuple[str, ...]) -> tuple[SE2, object, list[str]] | None:
-        """A bank camera pose from arm base P1 that sees tid (and the group) with NSV; also lists
-        every other unknown TROI nearby that the same image shows with NSV."""
+    def _view(self, P1: np.ndarray, tid: str, group: tuple[str, ...], near: list[str]) -> tuple[SE2, object, list[str]] | None:
+        """A bank camera pose from arm base P1 that sees tid with NSV and as many of `group` as it
+        can; then every TROI of `near` the same image shows with NSV (those reveal for free)."""
         X = np.array(self.trois[tid].xy)
         aim = np.mean([X] + [np.array(self.trois[g].xy) for g in group], axis=0)
         body = self._body(P1, math.atan2(aim[1] - P1[1], aim[0] - P1[0]))
@@ -418,11 +426,10 @@ class FieldPlanner:
         if gv is None or not bool(gv.seen[0]):
             return None
         seen = [i for i, s in zip(ids, gv.seen) if s]
-        near = [i for i in self.order if i not in self.known and i not in ids and np.linalg.norm(np.array(self.trois[i].xy) - P1) < 1.6]
-        near = near[: self.opt.view_neighbours]
-        if near:
-            extra = self.bank.seen_from(gv.T_field_cam, body, np.array([self.trois[i].xy for i in near]), np.array([self.core.effective_radius(self.trois[i].r) for i in near]))
-            seen += [i for i, s in zip(near, extra) if s]
+        rest = [i for i in near if i not in ids]
+        if rest:
+            extra = self.bank.seen_from(gv.T_field_cam, body, np.array([self.trois[i].xy for i in rest]), np.array([self.core.effective_radius(self.trois[i].r) for i in rest]))
+            seen += [i for i, s in zip(rest, extra) if s]
         return body, gv, seen
 
     # ---- after observation -----------------------------------------------------------------
