@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Mapping
 
 import cbor2
@@ -164,8 +166,11 @@ class LinkConfig:
     scouting are off unless asked for, and nothing listens unless `listen` says so (the zenoh
     default peer listens on every interface).
 
-    `base_json5` is a whole zenoh config to start from (TLS, user/password, ...); the fields
-    here are applied on top of it, then `overrides` (zenoh config path -> value, e.g.
+    `config_file` (a zenoh JSON5/YAML file: TLS, user/password, access control; see
+    mission/examples/zenoh-*.json5 and docs/security.md) or `base_json5` (the same as text) is
+    the config to start from; relative certificate/key/dictionary paths in a file are taken
+    relative to the file. The fields here are applied on top of it (endpoints, mode, scouting
+    and lease always come from here), then `overrides` (zenoh config path -> value, e.g.
     {"transport/link/tls/root_ca_certificate": "/etc/ca.pem"}) last.
     """
 
@@ -177,12 +182,18 @@ class LinkConfig:
     multicast: bool = False
     gossip: bool = False
     base_json5: str | None = None
+    config_file: str | None = None
     overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def zenoh_config(self):  # -> zenoh.Config (imported lazily: the codec needs no zenoh)
         import zenoh
 
-        cfg = zenoh.Config.from_json5(self.base_json5) if self.base_json5 else zenoh.Config()
+        if self.config_file and self.base_json5:
+            raise ValueError("give config_file or base_json5, not both")
+        if self.config_file:
+            cfg = load_config_file(self.config_file)
+        else:
+            cfg = zenoh.Config.from_json5(self.base_json5) if self.base_json5 else zenoh.Config()
         items: dict[str, Any] = {
             "mode": self.mode,
             "connect/endpoints": list(self.connect),
@@ -196,6 +207,83 @@ class LinkConfig:
         for path, value in items.items():
             cfg.insert_json5(path, json.dumps(value))
         return cfg
+
+
+# Config paths that name files: made absolute against the config file's directory.
+FILE_KEYS = (
+    "transport/link/tls/root_ca_certificate",
+    "transport/link/tls/listen_private_key",
+    "transport/link/tls/listen_certificate",
+    "transport/link/tls/connect_private_key",
+    "transport/link/tls/connect_certificate",
+    "transport/auth/usrpwd/dictionary_file",
+)
+
+
+def load_config_file(path: str | os.PathLike):  # -> zenoh.Config
+    """Load a zenoh config file (JSON5 or YAML), with relative file paths (certificates, keys,
+    the user/password dictionary) resolved against the file's directory rather than the
+    process's working directory. A missing file named by one of them is an error here, at
+    start, not a TLS handshake that fails later on every connection."""
+    import zenoh
+
+    p = Path(path).expanduser()
+    if not p.is_file():
+        raise FileNotFoundError(f"zenoh config file not found: {p}")
+    cfg = zenoh.Config.from_file(str(p))
+    for key in FILE_KEYS:
+        value = json.loads(cfg.get_json(key))
+        if not isinstance(value, str) or not value:
+            continue
+        f = Path(value).expanduser()
+        if not f.is_absolute():
+            f = (p.parent / f).resolve()
+            cfg.insert_json5(key, json.dumps(str(f)))
+        if not f.is_file():
+            raise FileNotFoundError(f"{p}: {key.replace('/', '.')} names a missing file: {f}")
+    return cfg
+
+
+def link_security(cfg) -> dict[str, Any]:
+    """What a zenoh config enforces, read back from the config itself (for logs and checks):
+    `tls` (some endpoint is tls/ or quic/), `mtls`, `usrpwd` (a dictionary of users is set: peers
+    must authenticate), `acl` (access control on with default deny), `endpoints` (listen +
+    connect), `loopback_only` (every listen endpoint is on 127.0.0.0/8 or ::1)."""
+
+    def get(key: str) -> Any:
+        return json.loads(cfg.get_json(key))
+
+    listen = list(get("listen/endpoints") or [])
+    connect = list(get("connect/endpoints") or [])
+    if isinstance(listen, dict):  # per-mode form {router: [...], peer: [...]}
+        listen = [e for v in listen.values() for e in (v or [])]
+    if isinstance(connect, dict):
+        connect = [e for v in connect.values() for e in (v or [])]
+    ends = [str(e) for e in listen + connect]
+    acl = get("access_control") or {}
+    return {
+        "tls": bool(ends) and all(e.split("/", 1)[0] in ("tls", "quic") for e in ends),
+        "mtls": bool(get("transport/link/tls/enable_mtls")),
+        "usrpwd": bool(get("transport/auth/usrpwd/dictionary_file")),
+        "acl": bool(acl.get("enabled")) and acl.get("default_permission") == "deny",
+        "endpoints": ends,
+        "loopback_only": all(is_loopback_endpoint(str(e)) for e in listen),
+    }
+
+
+def is_loopback_endpoint(endpoint: str) -> bool:
+    """True for `proto/127.x.y.z:port`, `proto/[::1]:port`, `proto/localhost:port` (zenoh locators;
+    anything after `#` or `?` is ignored)."""
+    import ipaddress
+
+    addr = endpoint.split("/", 1)[-1].split("#", 1)[0].split("?", 1)[0]
+    host = addr.rsplit(":", 1)[0].strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def close_at_interpreter_exit(obj: Any) -> None:

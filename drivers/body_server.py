@@ -26,6 +26,7 @@ from drivers.body_protocol import (
     close_at_interpreter_exit,
     decode,
     encode,
+    link_security,
     pose_map,
 )
 from drivers.interfaces import EStopActive
@@ -97,6 +98,13 @@ class ServerConfig:
     estop_timeout_s: float = 1.0  # no check-in for this long → body stopped, E-stop engaged
     lease_ttl_s: float = 2.0
     max_move_timeout_s: float = 600.0
+    # Serving a non-loopback endpoint needs authentication (mutual TLS or user/password) and an
+    # access-control list with default deny in the zenoh config (docs/security.md), unless this is set.
+    allow_insecure: bool = False
+
+
+class InsecureLink(ValueError):
+    """The robot side was asked to serve beyond loopback without authentication and an ACL."""
 
 
 class BodyServer:
@@ -116,6 +124,8 @@ class BodyServer:
         self._keepalive_ok: bool | None = None
         self._last_move: tuple[int, str] | None = None
         self._seq = 0
+        self._peers: dict[str, dict] = {}
+        self.security: dict | None = None
 
     # ---- lifecycle ---------------------------------------------------------------------------
     def start(self) -> "BodyServer":
@@ -123,9 +133,15 @@ class BodyServer:
 
         self.backend.keepalive(False, "no_estop_checkin")  # E-stopped until a client checks in (as Spot without an endpoint)
         self._keepalive_ok = False
-        s = self._session = zenoh.open(self.config.link.zenoh_config())
+        zcfg = self.config.link.zenoh_config()
+        self.security = sec = link_security(zcfg)
+        self._check_security(sec)
+        s = self._session = zenoh.open(zcfg)
         close_at_interpreter_exit(self)
         try:
+            # Who opened a link, as the transport authenticated it (certificate CN under TLS):
+            # an audit trail, and the stats show peers that got that far.
+            self._link_listener = s.info.declare_link_events_listener(self._on_link, history=True)
             self._state_pub = s.declare_publisher(
                 self.keys.state, congestion_control=zenoh.CongestionControl.DROP, express=True
             )
@@ -143,6 +159,21 @@ class BodyServer:
             self.close()
             raise
         return self
+
+    def _check_security(self, sec: dict) -> None:
+        authenticated = (sec["tls"] and sec["mtls"]) or sec["usrpwd"]
+        if sec["loopback_only"] or (authenticated and sec["acl"]):
+            if not sec["loopback_only"] and not sec["tls"]:
+                log.warning("body link: user/password without TLS: traffic is neither encrypted nor integrity-protected")
+            log.info("body link security: %s", {k: v for k, v in sec.items() if k != "endpoints"})
+            return
+        missing = [n for n, ok in (("mutual TLS (tls/ endpoints, enable_mtls) or user/password", authenticated),
+                                   ("access_control with default_permission deny", sec["acl"])) if not ok]
+        msg = (f"refusing to serve {', '.join(sec['endpoints'])} without {' and '.join(missing)} "
+               "(zenoh config file: see mission/examples/zenoh-robot.json5 and docs/security.md)")
+        if not self.config.allow_insecure:
+            raise InsecureLink(msg)
+        log.warning("INSECURE body link (allow_insecure): %s", msg)
 
     def close(self) -> None:
         self._stop.set()
@@ -168,9 +199,18 @@ class BodyServer:
     @property
     def stats(self) -> dict[str, int]:
         """Counters: queries by kind, refusals by reason (malformed, bad_version, foreign_key,
-        no_lease, lease_refused, estop), estop_timeouts, lease_expired, state_published."""
+        no_lease, lease_refused, estop), estop_timeouts, lease_expired, state_published,
+        links_opened / links_closed / links_unnamed (zenoh links; a peer refused by TLS or
+        user/password never opens one; one refused by the ACL opens one, its messages are dropped
+        by zenoh before this code sees them)."""
         with self._lock:
             return dict(self._stats)
+
+    @property
+    def peers(self) -> dict[str, dict]:
+        """Open links by remote zenoh id: {'remote': locator, 'auth': certificate CN or None}."""
+        with self._lock:
+            return {z: dict(v) for z, v in self._peers.items()}
 
     @property
     def lease_holder(self) -> str | None:
@@ -314,7 +354,24 @@ class BodyServer:
         st = self.backend.poll()
         return {"timeout_ns": int(self.config.estop_timeout_s * 1e9), "estop": st.estop}
 
-    # ---- puts and client liveliness ----------------------------------------------------------
+    # ---- links, puts and client liveliness ----------------------------------------------------
+    def _on_link(self, event) -> None:
+        import zenoh
+
+        link = event.link
+        zid, remote, auth = str(link.zid), str(link.dst), link.auth_identifier
+        with self._lock:
+            if event.kind == zenoh.SampleKind.PUT:
+                self._stats["links_opened"] += 1
+                if auth is None:
+                    self._stats["links_unnamed"] += 1  # plain tcp/, or user/password (not shown per link)
+                self._peers[zid] = {"remote": remote, "auth": auth}
+            else:
+                self._stats["links_closed"] += 1
+                self._peers.pop(zid, None)
+        log.info("body link %s: peer %s from %s, authenticated as %s",
+                 "opened" if event.kind == zenoh.SampleKind.PUT else "closed", zid, remote, auth)
+
     def _on_put(self, sample) -> None:
         with self._lock:
             self._stats["foreign_put"] += 1  # nobody but this server publishes under the prefix

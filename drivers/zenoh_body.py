@@ -12,16 +12,28 @@ timeout), and a new `ZenohBody` is needed to reconnect.
 from __future__ import annotations
 
 import collections
+import logging
 import math
 import os
 import secrets
 import threading
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Callable
 
 from capm_field.geometry import SE2
-from drivers.body_protocol import Keys, LinkConfig, ProtocolError, close_at_interpreter_exit, decode, encode, pose_map
+from drivers.body_protocol import (
+    Keys,
+    LinkConfig,
+    ProtocolError,
+    close_at_interpreter_exit,
+    decode,
+    encode,
+    is_loopback_endpoint,
+    link_security,
+    pose_map,
+)
 from drivers.interfaces import (
     Body,
     BodyState,
@@ -33,6 +45,7 @@ from drivers.interfaces import (
     MoveResult,
 )
 
+log = logging.getLogger(__name__)
 _TERMINAL = ("succeeded", "failed", "stopped", "estop", "timeout")
 
 
@@ -46,8 +59,22 @@ class ZenohBodyConfig:
     client_id: str | None = None  # default: unique per instance
 
     @staticmethod
-    def loopback(port: int, robot_id: str = "spot", lease_ms: int = 1000, **kw) -> "ZenohBodyConfig":
-        return ZenohBodyConfig(robot_id=robot_id, link=LinkConfig(connect=(f"tcp/127.0.0.1:{port}",), lease_ms=lease_ms), **kw)
+    def loopback(port: int, robot_id: str = "spot", lease_ms: int = 1000, *, config_file: str | None = None,
+                 proto: str = "tcp", **kw) -> "ZenohBodyConfig":
+        link = LinkConfig(connect=(f"{proto}/127.0.0.1:{port}",), lease_ms=lease_ms, config_file=config_file)
+        return ZenohBodyConfig(robot_id=robot_id, link=link, **kw)
+
+    @staticmethod
+    def from_spec(spec, base_dir: str | os.PathLike | None = None, **kw) -> "ZenohBodyConfig":
+        """From a mission file's `drivers.zenoh` (`mission.config.ZenohSpec`): robot_id, connect,
+        listen, `lease_s` (transport lease) and `config_file` (TLS/auth JSON5, relative to
+        `base_dir`, the mission file's directory)."""
+        cf = spec.config_file
+        if cf and base_dir is not None and not Path(cf).expanduser().is_absolute():
+            cf = str(Path(base_dir) / cf)
+        link = LinkConfig(connect=tuple(spec.connect), listen=tuple(spec.listen), lease_ms=int(round(spec.lease_s * 1000)),
+                          config_file=cf)
+        return ZenohBodyConfig(robot_id=spec.robot_id, link=link, **kw)
 
 
 class ZenohBody(Body):
@@ -77,7 +104,12 @@ class ZenohBody(Body):
         self._listeners: list[Callable[[BodyState], None]] = []
         self._stop_bg = threading.Event()
         self._bg: threading.Thread | None = None
-        self._session = zenoh.open(cfg.link.zenoh_config())
+        zcfg = cfg.link.zenoh_config()
+        sec = link_security(zcfg)
+        if not sec["tls"] and any(not is_loopback_endpoint(e) for e in cfg.link.connect):
+            log.warning("body link to %s without TLS: anyone on the network can read and forge it (docs/security.md)",
+                        ", ".join(cfg.link.connect))
+        self._session = zenoh.open(zcfg)
         close_at_interpreter_exit(self)
         try:
             s = self._session

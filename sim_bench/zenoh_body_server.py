@@ -3,7 +3,9 @@
 In a thread:   `with serve_sim_body(robot_id, listen=["tcp/127.0.0.1:PORT"]) as bench: ...`
 As a process:  `python -m sim_bench.zenoh_body_server --listen tcp/127.0.0.1:PORT`
 (prints one `READY <robot_id>` line when serving; SIGTERM/SIGINT close it cleanly), so tests
-can SIGKILL or SIGSTOP the robot side.
+can SIGKILL or SIGSTOP the robot side. The bench listens on loopback only: any other listen
+endpoint is refused. `config_file` / `--zenoh-config`: a zenoh JSON5 file with TLS, user/password
+and the access-control list (mission/examples/zenoh-robot.json5, docs/security.md).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from dataclasses import dataclass
 
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2
-from drivers.body_protocol import LinkConfig
+from drivers.body_protocol import LinkConfig, is_loopback_endpoint
 from drivers.body_server import BackendState, BodyBackend, BodyServer, ServerConfig
 from sim_bench.sim_body import SimBody, SimClock
 
@@ -84,12 +86,18 @@ def serve_sim_body(
     seed: int = 0,
     body: BodyConfig | None = None,
     link: LinkConfig | None = None,
+    config_file: str | None = None,
 ) -> SimBodyBench:
-    """Start serving a real-time SimBody in this process (the server runs its own thread)."""
+    """Start serving a real-time SimBody in this process (the server runs its own thread).
+    Loopback endpoints only (ValueError otherwise): the bench is never reachable from outside."""
+    link = link or LinkConfig(listen=tuple(listen), lease_ms=lease_ms, config_file=config_file)
+    outside = [e for e in link.listen if not is_loopback_endpoint(e)]
+    if outside or not link.listen:
+        raise ValueError(f"the bench listens on loopback only (127.0.0.1 / ::1), got {list(link.listen)}")
     sim = SimBody(config=body, clock=SimClock(realtime=True), seed=seed)
     cfg = ServerConfig(
         robot_id=robot_id,
-        link=link or LinkConfig(listen=tuple(listen), lease_ms=lease_ms),
+        link=link,
         state_rate_hz=state_rate_hz,
         estop_timeout_s=estop_timeout_s,
         lease_ttl_s=lease_ttl_s,
@@ -106,13 +114,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--estop-timeout", type=float, default=1.0, help="E-stop keep-alive timeout (s)")
     ap.add_argument("--lease-ttl", type=float, default=2.0, help="body lease TTL (s)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--zenoh-config", help="zenoh JSON5 config: TLS, user/password, access control (docs/security.md)")
     a = ap.parse_args(argv)
     done = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: done.set())
     bench = serve_sim_body(
         a.robot_id, a.listen, lease_ms=a.lease_ms, state_rate_hz=a.state_rate,
-        estop_timeout_s=a.estop_timeout, lease_ttl_s=a.lease_ttl, seed=a.seed,
+        estop_timeout_s=a.estop_timeout, lease_ttl_s=a.lease_ttl, seed=a.seed, config_file=a.zenoh_config,
     )
     try:
         print(f"READY {a.robot_id}", flush=True)
@@ -137,13 +146,14 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def spawn_server(port: int, robot_id: str = "spot", *extra: str, timeout: float = 20.0):
-    """Start `python -m sim_bench.zenoh_body_server` on loopback; returns the Popen once READY."""
+def spawn_server(port: int, robot_id: str = "spot", *extra: str, timeout: float = 20.0, proto: str = "tcp"):
+    """Start `python -m sim_bench.zenoh_body_server` on loopback; returns the Popen once READY.
+    `proto="tls"` with `"--zenoh-config", FILE` in `extra` for the secured link."""
     import os
     import subprocess
     import time
 
-    cmd = [sys.executable, "-m", "sim_bench.zenoh_body_server", "--listen", f"tcp/127.0.0.1:{port}",
+    cmd = [sys.executable, "-m", "sim_bench.zenoh_body_server", "--listen", f"{proto}/127.0.0.1:{port}",
            "--robot-id", robot_id, *extra]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
