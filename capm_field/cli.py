@@ -19,6 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "validate": ("mission.run_cli:validate_main", "check a mission file without running it"),
     "review": ("mission.review", "open a run log (MCAP) in Rerun"),
     "bench": ("capm_field.bench", "planner bench: reproduce the paper's Table I"),
+    "bench-fields": ("capm_field.fields_bench", "whole fields: per-target planners vs the field planner and the oracle"),
     "bench-mission": ("mission.bench_mission", "planner bench on a mission's geometry (check a run against it)"),
     "regions": ("capm_field.regions_plot", "draw R_o, R_m and their overlap to a PNG"),
     "bench-perception": ("sim_bench.perception_bench", "detector accuracy and latency on rendered scenes"),
