@@ -107,6 +107,25 @@ class InsecureLink(ValueError):
     """The robot side was asked to serve beyond loopback without authentication and an ACL."""
 
 
+def check_link_security(sec: dict, allow_insecure: bool = False) -> None:
+    """Raise InsecureLink unless the robot side listens on loopback only, or peers must
+    authenticate (mutual TLS on tls/ endpoints, or user/password) and an access-control list with
+    default deny is on. `sec` is `link_security(zenoh_config)`. With `allow_insecure`: a warning."""
+    authenticated = (sec["tls"] and sec["mtls"]) or sec["usrpwd"]
+    if sec["loopback_only"] or (authenticated and sec["acl"]):
+        if not sec["loopback_only"] and not sec["tls"]:
+            log.warning("body link: user/password without TLS: traffic is neither encrypted nor integrity-protected")
+        log.info("body link security: %s", {k: v for k, v in sec.items() if k != "endpoints"})
+        return
+    missing = [n for n, ok in (("mutual TLS (tls/ endpoints, enable_mtls) or user/password", authenticated),
+                               ("access_control with default_permission deny", sec["acl"])) if not ok]
+    msg = (f"refusing to serve {', '.join(sec['endpoints'])} without {' and '.join(missing)} "
+           "(zenoh config file: see mission/examples/zenoh-robot.json5 and docs/security.md)")
+    if not allow_insecure:
+        raise InsecureLink(msg)
+    log.warning("INSECURE body link (allow_insecure): %s", msg)
+
+
 class BodyServer:
     """Serve one body on zenoh. `start()` then `close()` (idempotent); also a context manager."""
 
@@ -135,7 +154,7 @@ class BodyServer:
         self._keepalive_ok = False
         zcfg = self.config.link.zenoh_config()
         self.security = sec = link_security(zcfg)
-        self._check_security(sec)
+        check_link_security(sec, self.config.allow_insecure)
         s = self._session = zenoh.open(zcfg)
         close_at_interpreter_exit(self)
         try:
@@ -159,21 +178,6 @@ class BodyServer:
             self.close()
             raise
         return self
-
-    def _check_security(self, sec: dict) -> None:
-        authenticated = (sec["tls"] and sec["mtls"]) or sec["usrpwd"]
-        if sec["loopback_only"] or (authenticated and sec["acl"]):
-            if not sec["loopback_only"] and not sec["tls"]:
-                log.warning("body link: user/password without TLS: traffic is neither encrypted nor integrity-protected")
-            log.info("body link security: %s", {k: v for k, v in sec.items() if k != "endpoints"})
-            return
-        missing = [n for n, ok in (("mutual TLS (tls/ endpoints, enable_mtls) or user/password", authenticated),
-                                   ("access_control with default_permission deny", sec["acl"])) if not ok]
-        msg = (f"refusing to serve {', '.join(sec['endpoints'])} without {' and '.join(missing)} "
-               "(zenoh config file: see mission/examples/zenoh-robot.json5 and docs/security.md)")
-        if not self.config.allow_insecure:
-            raise InsecureLink(msg)
-        log.warning("INSECURE body link (allow_insecure): %s", msg)
 
     def close(self) -> None:
         self._stop.set()

@@ -28,8 +28,8 @@ from typing import Any
 
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2, wrap_angle
-from drivers.body_protocol import LinkConfig
-from drivers.body_server import BackendState, BodyBackend, BodyServer, MoveStatus, ServerConfig
+from drivers.body_protocol import LinkConfig, link_security
+from drivers.body_server import BackendState, BodyBackend, BodyServer, MoveStatus, ServerConfig, check_link_security
 from drivers.interfaces import EStopActive
 
 log = logging.getLogger(__name__)
@@ -266,7 +266,11 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--listen", action="append", required=True, help="zenoh endpoint to serve on (repeatable)")
     ap.add_argument("--connect", action="append", default=[], help="zenoh endpoint to connect to (repeatable)")
     ap.add_argument("--robot-id", default="spot", help="key prefix capm/<robot-id>/body")
-    ap.add_argument("--zenoh-config", help="JSON5 zenoh config to start from (TLS, auth); endpoints still apply")
+    ap.add_argument("--zenoh-config", help="zenoh JSON5 config: mutual TLS, user/password, access control "
+                                           "(mission/examples/zenoh-robot.json5, docs/security.md); endpoints still apply")
+    ap.add_argument("--insecure", action="store_true",
+                    help="serve a non-loopback endpoint without authentication + ACL (anyone on the network can "
+                         "command the body: lab use only)")
     ap.add_argument("--lease-ms", type=int, default=1000, help="zenoh transport lease (ms)")
     ap.add_argument("--estop-timeout", type=float, default=1.0, help="protocol E-stop keep-alive timeout (s)")
     ap.add_argument("--spot-estop-timeout", type=float, default=9.0, help="Spot E-stop endpoint timeout (s)")
@@ -281,17 +285,18 @@ def main(argv: list[str]) -> int:
         print("capm-field spot-bridge: error: bosdyn-client is not installed (pip install 'capm-field[spot]')",
               file=sys.stderr)
         return 2
-    base = None
-    if a.zenoh_config:
-        with open(a.zenoh_config) as f:
-            base = f.read()
+    link = LinkConfig(listen=tuple(a.listen), connect=tuple(a.connect), lease_ms=a.lease_ms, config_file=a.zenoh_config)
+    try:  # before touching the robot: a missing certificate or an unsecured endpoint stops here
+        check_link_security(link_security(link.zenoh_config()), a.insecure)
+    except (OSError, ValueError) as e:
+        print(f"capm-field spot-bridge: error: {e}", file=sys.stderr)
+        return 2
     cfg = BodyConfig(max_speed=a.max_speed, max_yaw_rate=a.max_yaw_rate)
     backend, cleanup = connect_spot(a.hostname, cfg, a.field_in_odom, a.spot_estop_timeout)
     server = None
     try:
-        link = LinkConfig(listen=tuple(a.listen), connect=tuple(a.connect), lease_ms=a.lease_ms, base_json5=base)
         server = BodyServer(backend, ServerConfig(robot_id=a.robot_id, link=link, estop_timeout_s=a.estop_timeout,
-                                                  lease_ttl_s=a.lease_ttl)).start()
+                                                  lease_ttl_s=a.lease_ttl, allow_insecure=a.insecure)).start()
         print(f"spot-bridge: serving capm/{a.robot_id}/body on {', '.join(a.listen)}", flush=True)
         done = threading.Event()
         signal.signal(signal.SIGTERM, lambda *_: done.set())  # systemd stop: clean power-off path

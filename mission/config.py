@@ -85,7 +85,8 @@ class ZenohSpec(_Strict):
     robot_id: str = "spot"
     connect: list[str] = Field(default_factory=lambda: ["tcp/192.168.80.3:7447"])
     listen: list[str] = Field(default_factory=list)
-    config_file: str | None = Field(None, description="zenoh JSON5 config (TLS, auth, ACL); overrides the fields above")
+    config_file: str | None = Field(None, description="zenoh JSON5 config (mutual TLS, user/password), relative to this "
+                                    "file; connect/listen/lease above still apply (docs/security.md)")
     estop_timeout_s: float = Field(1.0, gt=0.0)
     lease_s: float = Field(1.0, gt=0.0)
 

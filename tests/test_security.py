@@ -375,3 +375,27 @@ def test_config_files_resolve_paths_and_fail_early(pki, tmp_path):
 
     hw = yaml.safe_load((EXAMPLES / "hardware_template.yaml").read_text())["drivers"]["zenoh"]
     assert hw["config_file"] == "zenoh-client.json5" and all(e.startswith("tls/") for e in hw["connect"])
+
+
+def test_spot_bridge_refuses_an_unsecured_endpoint_before_touching_the_robot(pki, monkeypatch, capsys):
+    pytest.importorskip("bosdyn.client")
+    from drivers import spot_bridge
+
+    class Reached(Exception):
+        pass
+
+    def fake_connect(*a, **k):
+        raise Reached
+
+    monkeypatch.setattr(spot_bridge, "connect_spot", fake_connect)
+    assert spot_bridge.main(["--hostname", "spot", "--listen", "tcp/192.168.50.5:7447"]) == 2
+    assert "refusing to serve tcp/192.168.50.5:7447" in capsys.readouterr().err
+    with pytest.raises(Reached):  # secured: goes on to the robot
+        spot_bridge.main(["--hostname", "spot", "--listen", "tls/192.168.50.5:7447", "--zenoh-config",
+                          str(pki / "zenoh-robot.json5")])
+    with pytest.raises(Reached):  # explicit opt-out
+        spot_bridge.main(["--hostname", "spot", "--listen", "tcp/192.168.50.5:7447", "--insecure"])
+    missing = pki.parent / "elsewhere.json5"
+    shutil.copy(EXAMPLES / "zenoh-robot.json5", missing)
+    assert spot_bridge.main(["--hostname", "spot", "--listen", "tls/192.168.50.5:7447", "--zenoh-config", str(missing)]) == 2
+    assert "names a missing file" in capsys.readouterr().err
