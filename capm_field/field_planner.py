@@ -68,7 +68,7 @@ class FieldOptions:
     reveal_bonus: float = 0.4  # value of learning one more MPOI in a view (≈ saved reposition)
     cover_bonus: float = 1.0  # value of flaming one more known target from the same stop (one move)
     group_radius: float = 1.0  # unknown TROIs within this of X_i are candidates for a shared view
-    group_verify: int = 3  # bank checks per re-plan (best candidates first)
+    group_verify: int = 2  # bank checks per re-plan (best candidates first)
     view_neighbours: int = 8  # at most this many of them (nearest in visiting order)
     proxy_drho: float = 0.25  # shared-view proxy: |ρ_j − ρ_i| from the stop (m) …
     proxy_dbearing: float = 0.6  # … and bearing difference (rad), both from the bank's feasible set

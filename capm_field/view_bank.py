@@ -70,7 +70,7 @@ class ViewBank:
     def __len__(self) -> int:
         return len(self.q)
 
-    def best_view(self, body: SE2, centres: np.ndarray, radii: np.ndarray, window: float = 0.25, max_poses: int = 400) -> GroupView | None:
+    def best_view(self, body: SE2, centres: np.ndarray, radii: np.ndarray, window: float = 0.25, max_poses: int = 250) -> GroupView | None:
         """The bank pose from body pose x_b that sees the first disc (the primary TROI) with NSV and
         as many of the others as possible (ties: the largest smallest area margin h − δ).
 
