@@ -399,3 +399,19 @@ def test_spot_bridge_refuses_an_unsecured_endpoint_before_touching_the_robot(pki
     shutil.copy(EXAMPLES / "zenoh-robot.json5", missing)
     assert spot_bridge.main(["--hostname", "spot", "--listen", "tls/192.168.50.5:7447", "--zenoh-config", str(missing)]) == 2
     assert "names a missing file" in capsys.readouterr().err
+
+
+def test_commander_does_not_talk_to_an_impostor_robot(pki):
+    """A robot side with a certificate from another CA (same CN): the commander's TLS refuses it,
+    so no check-in or command ever leaves for it (it could otherwise keep a real E-stop released
+    nowhere, or learn the commander's traffic)."""
+    port = free_port()
+    fake = LinkConfig(listen=(f"tls/127.0.0.1:{port}",), config_file=str(pki / "zenoh-robot.json5"),
+                      overrides={"transport/link/tls/listen_certificate": str(pki / "certs" / "stranger-robot.pem"),
+                                 "transport/link/tls/listen_private_key": str(pki / "certs" / "stranger-robot.key"),
+                                 "access_control/enabled": False})
+    with serve_sim_body(RID, link=fake, body=FAST) as impostor:
+        with pytest.raises(LinkLost, match="no robot side"):
+            ZenohBody(ZenohBodyConfig.loopback(port, RID, proto="tls", connect_timeout_s=0.5,
+                                               config_file=str(pki / "zenoh-client.json5")))
+        assert commands_seen(impostor.server.stats) == 0 and impostor.server.stats.get("links_opened", 0) == 0
