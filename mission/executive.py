@@ -27,7 +27,7 @@ from capm_field.geometry import SE2
 from capm_field.keystates import TROI, KeyState, Plan
 from capm_field.planners import BasePlanner, PlanningCore
 from capm_field.reachability import FlameSolver
-from drivers.interfaces import DriverError, DriverSet, EStopActive, LinkLost
+from drivers.interfaces import DriverError, DriverSet, DriverTimeout, EStopActive, LinkLost
 
 from .interlock import IgnitionInterlock
 from .ordering import order_trois
@@ -104,6 +104,7 @@ class Executive:
         now_ns: Callable[[], int] = time.time_ns,
         timeouts: dict[str, float] | None = None,
         detector: Callable | None = None,
+        hook: Callable[[int, str, float], set[str]] | None = None,
     ):
         self.trois = trois
         self.start, self.end = start, end
@@ -127,6 +128,20 @@ class Executive:
         self.detect = detector
         self.total_energy = 0.0
         self._phase = "idle"
+        self._hook_fn = hook
+        self._index = 0
+        self._directives: set[str] = set()
+
+    def _hook(self, phase: str, elapsed_s: float = 0.0) -> None:
+        """Bench fault schedule: lets scheduled faults strike at this phase (no-op on the robot)."""
+        if self._hook_fn is not None:
+            self._directives |= self._hook_fn(self._index, phase, elapsed_s)
+
+    def _take(self, directive: str) -> bool:
+        if directive in self._directives:
+            self._directives.discard(directive)
+            return True
+        return False
 
     # ---- logging helpers -------------------------------------------------------------------
     def _event(self, level: str, msg: str, **kw) -> None:
@@ -135,7 +150,10 @@ class Executive:
 
     def _tf(self) -> None:
         if self.log:
-            self.log.transforms(self.now_ns(), self.d.body.state().pose, self.d.arm.state().joints)
+            try:
+                self.log.transforms(self.now_ns(), self.d.body.state().pose, self.d.arm.state().joints)
+            except DriverError:
+                pass  # no state over a lost link: nothing to draw
 
     def _ks(self, tid: str, ks: KeyState, note: str = "") -> None:
         if self.log:
@@ -149,6 +167,12 @@ class Executive:
     def _igniter_state(self, il: IgnitionInterlock | None = None) -> None:
         if not self.log:
             return
+        try:
+            self._log_igniter(il)
+        except DriverError as e:  # a dead link must not stop the record (nor the safing after it)
+            self._event("warning", f"igniter state unavailable: {e}")
+
+    def _log_igniter(self, il: IgnitionInterlock | None) -> None:
         g = self.d.igniter.state()
         if il is not None:
             st = il.check()
@@ -194,6 +218,12 @@ class Executive:
     def _arm_to(self, sol: ArmSolution) -> None:
         r = self.d.arm.move_joints(sol.q, self.timeouts["arm"])
         self._tf()
+        if not r.ok and self.d.arm.state().fault and hasattr(self.d.arm, "reset"):
+            # A latched arm fault: reset once and retry the move (then give up on the target).
+            self._event("warning", f"arm fault {self.d.arm.state().fault}: reset and retry once")
+            self.d.arm.reset(self.timeouts["arm"])
+            r = self.d.arm.move_joints(sol.q, self.timeouts["arm"])
+            self._tf()
         if not r.ok:
             raise _Skip(f"arm_motion_failed:{r.reason}")
 
@@ -201,17 +231,24 @@ class Executive:
     def _observe(self, tid: str, troi: TROI, body: SE2, r_eff: float) -> np.ndarray | None:
         """Arm to an NSV pose, capture, detect; one re-observation from an adjusted pose."""
         for attempt in range(2):
-            sol = self.view.solve(body, troi.xy, r_eff, variant=attempt)
+            self._hook("observe")
+            sol = None if self._take("ik_fail") else self.view.solve(body, troi.xy, r_eff, variant=attempt)
             if sol is None:
                 self._event("warning", f"{tid}: no NSV arm pose from here (attempt {attempt + 1})", target=tid)
                 continue
             self._arm_to(sol)
             self._ks(tid, KeyState("x_e,k2", body, "observe", troi.xy, r_eff), note=f"attempt {attempt + 1}")
-            frame = self.d.camera.capture(self.timeouts["camera"])
+            try:
+                frame = self.d.camera.capture(self.timeouts["camera"])
+            except DriverTimeout as e:
+                self._event("warning", f"{tid}: no camera frame ({e}), attempt {attempt + 1}", target=tid)
+                continue
             st_b, st_a = self.d.body.state(), self.d.arm.state()
             T_cam = self.robot.T_field_base(st_b.pose) @ st_a.camera_pose
             roi = self._roi(T_cam, troi)
             det = self.detect(frame.image, roi=roi)
+            if self._take("detector_miss"):
+                det = type(det)(None, 0.0, "no_plant")
             mpoi = None
             if det.pixel is not None:
                 g = self.camera.pixel_to_ground(T_cam, np.array([det.pixel]))[0]
@@ -234,42 +271,82 @@ class Executive:
         return roi_from_troi(self.camera, T_cam, troi.xy, 1.5 * troi.r)
 
     def _flame(self, tid: str, body: SE2, mpoi: np.ndarray) -> float:
-        sol = flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi))
-        if sol is None:
-            raise _Skip("no_flame_pose")
-        self._arm_to(sol)
-        self._ks(tid, KeyState("x_e,k3", body, "flame", tuple(mpoi)))
-        il = IgnitionInterlock(self.d, self.robot, self.task, (float(mpoi[0]), float(mpoi[1])))
-        il.anchor()
-        st = il.check()
-        if not st.ok:
-            self._safe()
-            raise _Skip(f"interlock:{','.join(st.reasons)}")
-        self.d.igniter.arm(self.timeouts["arm"])
+        """x_e,k3 and the MTC hold under the interlock. A flame-out or a failed ignition gets one
+        more trial after a fault reset (burner practice: bounded trials; a second failure stays
+        latched); a pushed body gets one re-solved flame pose; an E-stop or an empty tank aborts."""
+        reason = "?"
+        for attempt in range(2):
+            sol = None if self._take("ik_fail") else flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi))
+            if sol is None:
+                raise _Skip("no_flame_pose")
+            self._arm_to(sol)
+            self._ks(tid, KeyState("x_e,k3", body, "flame", tuple(mpoi)), note=f"trial {attempt + 1}")
+            il = IgnitionInterlock(self.d, self.robot, self.task, (float(mpoi[0]), float(mpoi[1])))
+            il.anchor()
+            st = il.check()
+            if not st.ok:
+                self._safe()
+                self._raise_if_fatal(st.reasons, st.estop)
+                raise _Skip(f"interlock:{','.join(st.reasons)}")
+            self.d.igniter.arm(self.timeouts["arm"])
+            res = self._hold(il)
+            flame_s = float(res.extra.get("flame_s", 0.0))
+            if res.ok:
+                self._event("info", f"{tid}: flamed {flame_s:.2f} s (ξ = {self.task.xi} s)", target=tid)
+                return flame_s
+            reason = str(res.reason)
+            self._event("warning", f"{tid}: flame trial {attempt + 1} ended: {reason} after {flame_s:.2f} s", target=tid)
+            b = self.d.body.state()
+            self._raise_if_fatal(il.check().reasons + [reason], b.estop)
+            if reason == "fuel_empty":
+                raise MissionAborted("igniter: fuel empty")
+            if attempt == 0 and reason in ("ignition_failed", "flame_out"):
+                reset = getattr(self.d.igniter, "reset_fault", None)
+                if reset is None:
+                    break
+                reset(self.timeouts["arm"])
+                continue
+            if attempt == 0 and reason.startswith("permit"):
+                body = b.pose  # pushed or moved: re-solve the flame pose from where the body is
+                if not self.core.regions.in_R_m(body, mpoi):
+                    break
+                continue
+            break
+        raise _Skip(f"flame_failed:{reason}")
+
+    @staticmethod
+    def _raise_if_fatal(reasons: list[str], estop: bool) -> None:
+        """E-stop or a lost link anywhere ends the mission (igniter already off)."""
+        if estop:
+            raise EStopActive("E-stop engaged")
+        lost = [r for r in reasons if "link_lost" in r or "state_unavailable" in r]
+        if lost:
+            raise LinkLost(f"link lost ({', '.join(lost)})")
+
+    def _hold(self, il: IgnitionInterlock):
+        """ignite(ξ) with keep-alives permitted only while the interlock holds; flame off after."""
         last = [0]
+        t_start = [None]
 
         def permit() -> bool:
-            s = il.check()
             t = self.now_ns()
-            if t - last[0] > 50_000_000:  # log the igniter and interlock state at ≤ 20 Hz
+            if t_start[0] is None:
+                t_start[0] = t
+            self._hook("flame", (t - t_start[0]) * 1e-9)
+            s = il.check()
+            if self.log and (t - last[0] > 50_000_000 or not s.ok):  # ≤ 20 Hz, and every denial
                 last[0] = t
-                if self.log:
-                    g = self.d.igniter.state()
-                    self.log.igniter(t, g.flame_on, g.armed, g.fuel, g.fault, s.ok, s.reasons, s.body_stationary, s.epmc_ok, s.estop)
+                g = self.d.igniter.state()
+                self.log.igniter(t, g.flame_on, g.armed, g.fuel, g.fault, s.ok, s.reasons, s.body_stationary, s.epmc_ok, s.estop)
             return s.ok
 
         self._igniter_state(il)
         try:
-            res = self.d.igniter.ignite(self.task.xi, permit, timeout=self.task.xi + 10.0)
+            return self.d.igniter.ignite(self.task.xi, permit, timeout=self.task.xi + 10.0)
         finally:
             self._safe()
             self.d.igniter.disarm()
             self._igniter_state(il)
-        flame_s = float(res.extra.get("flame_s", 0.0))
-        if not res.ok:
-            raise _Skip(f"flame_failed:{res.reason}")
-        self._event("info", f"{tid}: flamed {flame_s:.2f} s (ξ = {self.task.xi} s)", target=tid)
-        return flame_s
 
     def _target(self, i: int, n: int, troi: TROI, x_kmax: SE2, res: TargetResult) -> None:
         tid = troi.id
@@ -298,6 +375,7 @@ class Executive:
             return pose
 
         self._set_phase(i, n, tid, "walk to x_b,k1")
+        self._hook("walk")
         x1 = walk(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
         if self.planner.name == "a":
@@ -322,6 +400,7 @@ class Executive:
                 P3 = self.planner._replan_k3(self.core.base_xy(here), self.core.base_xy(x_kmax), mpoi)
                 x3 = self.core.facing(P3, mpoi)
                 self._ks(tid, KeyState("x_b,k3", x3), note="re-plan" if attempt else "")
+                self._hook("reposition")
                 body = walk(x3, forced=True)
                 if flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi)) is not None:
                     break
@@ -331,6 +410,7 @@ class Executive:
         self._set_phase(i, n, tid, "flame")
         res.flame_s = self._flame(tid, body, mpoi)
         res.flamed = True
+        self._hook("stow")
         self._stow()
         if tid in self.truth:
             tx = np.asarray(self.truth[tid])
@@ -372,6 +452,7 @@ class Executive:
         try:
             self._check_startup()
             for i, troi in enumerate(ordered):
+                self._index = i
                 x_kmax = self._x_kmax(ordered, i)
                 res = results[i]
                 e0 = self.total_energy
@@ -393,7 +474,7 @@ class Executive:
                         pass
                 res.energy = self.total_energy - e0
                 res.body_moves = self._moves
-        except (LinkLost, EStopActive) as e:
+        except (LinkLost, EStopActive, MissionAborted) as e:
             aborted = f"{type(e).__name__}: {e}"
         except DriverError as e:
             aborted = f"{type(e).__name__}: {e}"

@@ -41,6 +41,7 @@ def _run_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, help="bench seed (overrides drivers.seed)")
     ap.add_argument("--faults", help="bench fault schedule: 'random:SEED' or KIND@TARGET[,KIND@TARGET...]")
     ap.add_argument("--quiet", action="store_true", help="no progress line")
+    ap.add_argument("--force", action="store_true", help="overwrite run.mcap/summary.json already in the output directory")
     return ap
 
 
@@ -84,6 +85,8 @@ def main(argv: list[str]) -> int:
     out = Path(a.out or mission.output.dir)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out: {out} exists and is not a directory")
+    if (out / "run.mcap").exists() and not a.force:
+        raise UserError(f"{out / 'run.mcap'} already exists: choose another --out or pass --force (nothing was started)")
 
     from capm_field.config import ReachabilityConfig
     from capm_field.planners import PlanningCore, make_planner
@@ -113,10 +116,28 @@ def main(argv: list[str]) -> int:
             return wall0 + clock.now_ns()
     else:
         now_ns = time.time_ns
-    log = RunLog(out / "run.mcap", robot, _camera(robot), bench=world is not None)
+    log = RunLog(out / "run.mcap", robot, _camera(robot), bench=world is not None, overwrite=a.force)
     progress = _Progress(not quiet)
+    hook = None
+    if world is not None:
+        from sim_bench.faults import FaultInjector, parse_faults
+
+        spec = a.faults if a.faults is not None else mission.drivers.faults
+        try:
+            faults = parse_faults(spec, len(trois))
+        except UserError:
+            drivers.close()
+            log.close()
+            raise
+        if faults:
+            injector = FaultInjector(faults, drivers, log_event=lambda lvl, msg: log.event(now_ns(), lvl, msg))
+            hook = injector.on
+    elif a.faults:
+        drivers.close()
+        log.close()
+        raise UserError("--faults applies to bench missions only")
     try:
-        ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts)
+        ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts, hook=hook)
         result = ex.run()
     finally:
         progress.close()

@@ -19,7 +19,7 @@ import numpy as np
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2, wrap_angle
 from drivers.body_server import MoveStatus
-from drivers.interfaces import Body, BodyState, DriverTimeout, EStopActive, MoveResult
+from drivers.interfaces import Body, BodyState, DriverTimeout, EStopActive, LinkLost, MoveResult
 
 _SUBSTEP_NS = 5_000_000  # integration step (5 ms): small against the 0.8 m/s² ramps
 _ARRIVE_TOL = 1e-4  # m and rad: the profile ends exactly on the goal, this only absorbs rounding
@@ -164,6 +164,12 @@ class SimBody:
             self._events.append((self._t + int(delay_s * 1e9), len(self._events), fn))
             self._events.sort(key=lambda e: e[:2])
 
+    def displace(self, dx: float, dy: float, dyaw: float = 0.0) -> None:
+        """An external push: the standing (or walking) body is moved by (dx, dy, dyaw) now."""
+        with self._lock:
+            p = self._pose
+            self._pose = SE2(p.x + dx, p.y + dy, float(wrap_angle(p.yaw + dyaw)))
+
     def freeze(self, frozen: bool = True) -> None:
         """Stop responding (drivers and the wire server honour it); the physics keeps its state."""
         self.frozen = frozen
@@ -257,10 +263,17 @@ class SimBodyDriver(Body):
         self.step_s = step_s
         self._next_id = 0
         self._closed = False
+        self.link_lost = False  # fault hook: the in-process stand-in for a lost zenoh link
+
+    def _check_link(self) -> None:
+        if self.link_lost:
+            self.sim.stop("link_lost")  # the robot side stops itself when its commander vanishes
+            raise LinkLost("simulated body link loss")
 
     def move_to(self, goal: SE2, timeout: float) -> MoveResult:
         if not all(math.isfinite(v) for v in goal.as_tuple()):
             raise ValueError(f"goal must be finite, got {goal}")
+        self._check_link()
         sim, clock = self.sim, self.sim.clock
         if sim.frozen:
             clock.advance(timeout)
@@ -287,6 +300,7 @@ class SimBodyDriver(Body):
         self.sim.stop()
 
     def state(self) -> BodyState:
+        self._check_link()
         return self.sim.snapshot()
 
     def close(self) -> None:
