@@ -213,6 +213,21 @@ class Executive:
             self.log.energy(self.now_ns(), self.total_energy, self._tid, self._target_energy + c, self._moves + 1)
         if not r.ok:
             raise _Skip(f"body_motion_failed:{r.reason}")
+        err = after.distance(goal)
+        tol = 2 * self.robot.cfg.body.position_tolerance
+        if err > tol:
+            # Slipped: arrived off the planned stop (regions are planned with the placement
+            # tolerance only). One corrective move, charged like any other.
+            self._event("warning", f"{self._tid}: arrived {err:.3f} m off the goal (slip?), correcting once", target=self._tid)
+            r = self.d.body.move_to(goal, self.timeouts["body"])
+            fixed = self.d.body.state().pose
+            self._tf()
+            c2 = energy.cost(after, fixed, self.task)
+            self.total_energy += c2
+            c += c2
+            if not r.ok or fixed.distance(goal) > tol:
+                raise _Skip(f"body_off_goal:{fixed.distance(goal):.3f}m")
+            after = fixed
         return after, c
 
     def _arm_to(self, sol: ArmSolution) -> None:
