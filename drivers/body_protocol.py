@@ -248,18 +248,20 @@ def link_security(cfg) -> dict[str, Any]:
     """What a zenoh config enforces, read back from the config itself (for logs and checks):
     `tls` (some endpoint is tls/ or quic/), `mtls`, `usrpwd` (a dictionary of users is set: peers
     must authenticate), `acl` (access control on with default deny), `endpoints` (listen +
-    connect), `loopback_only` (every listen endpoint is on 127.0.0.0/8 or ::1)."""
+    connect), `loopback_only` (every endpoint, listen and connect, is on 127.0.0.0/8, ::1 or
+    localhost, and multicast scouting is off: nothing off this machine can reach the session)."""
 
     def get(key: str) -> Any:
         return json.loads(cfg.get_json(key))
 
-    listen = list(get("listen/endpoints") or [])
-    connect = list(get("connect/endpoints") or [])
-    if isinstance(listen, dict):  # per-mode form {router: [...], peer: [...]}
-        listen = [e for v in listen.values() for e in (v or [])]
-    if isinstance(connect, dict):
-        connect = [e for v in connect.values() for e in (v or [])]
-    ends = [str(e) for e in listen + connect]
+    def endpoints(key: str) -> list[str]:
+        v = get(key) or []
+        if isinstance(v, dict):  # per-mode form {router: [...], peer: [...], client: [...]}
+            return [str(e) for lst in v.values() for e in (lst or [])]
+        return [str(e) for e in v]
+
+    listen, connect = endpoints("listen/endpoints"), endpoints("connect/endpoints")
+    ends = listen + connect
     acl = get("access_control") or {}
     return {
         "tls": bool(ends) and all(e.split("/", 1)[0] in ("tls", "quic") for e in ends),
@@ -267,7 +269,7 @@ def link_security(cfg) -> dict[str, Any]:
         "usrpwd": bool(get("transport/auth/usrpwd/dictionary_file")),
         "acl": bool(acl.get("enabled")) and acl.get("default_permission") == "deny",
         "endpoints": ends,
-        "loopback_only": all(is_loopback_endpoint(str(e)) for e in listen),
+        "loopback_only": all(is_loopback_endpoint(e) for e in ends) and not get("scouting/multicast/enabled"),
     }
 
 
