@@ -69,14 +69,14 @@ class _Progress:
             sys.stderr.write("\n")
 
 
-def _open_drivers(mission: Mission, robot, trois, seed: int | None):
+def _open_drivers(mission: Mission, robot, trois, seed: int | None, mission_dir: Path):
     if mission.drivers.kind == "bench":
         from sim_bench.bench_drivers import open_bench_drivers  # dynamic choice, the executive can't tell
 
         s = mission.drivers.seed if seed is None else seed
         return open_bench_drivers(robot, mission.task, trois, mission.start.se2(), s, mission.drivers.mpoi_in_troi)
     mod = importlib.import_module("drivers.hardware")
-    return mod.open_hardware_drivers(mission, robot)
+    return mod.open_hardware_drivers(mission, robot, mission_dir)
 
 
 def main(argv: list[str]) -> int:
@@ -104,7 +104,13 @@ def main(argv: list[str]) -> int:
     for t in trois:
         core.effective_radius(t.r)  # every TROI must be plannable before anything starts
     planner = make_planner(mission.planner, core, seed=mission.drivers.seed if mission.drivers.kind == "bench" else 0)
-    drivers = _open_drivers(mission, robot, trois, a.seed)
+    from drivers.interfaces import DriverError
+
+    try:
+        drivers = _open_drivers(mission, robot, trois, a.seed, Path(a.mission).resolve().parent)
+    except DriverError as e:
+        print(f"capm-field run: cannot open the drivers: {type(e).__name__}: {e} (nothing started)", file=sys.stderr)
+        return 1
     out.mkdir(parents=True, exist_ok=True)
     world = drivers.extras.get("world")
     truth = world.truth if world is not None else {}
