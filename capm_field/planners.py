@@ -320,7 +320,11 @@ class BayesPlanner(_ObservingPlanner):
 
 
 def make_planner(name: str, core: PlanningCore, options: PlannerOptions | None = None, seed: int = 0) -> BasePlanner:
+    if name == "field":
+        from .field_planner import FieldPlanner  # the whole-field planner (issue 7), same factory
+
+        return FieldPlanner(core, seed=seed)  # type: ignore[return-value]
     table = {"a": DeterministicPlanner, "b": DecoupledPlanner, "c": CapmPlanner, "cstar": BayesPlanner}
     if name not in table:
-        raise UserError(f"unknown planner {name!r}; choose from {', '.join(table)}")
+        raise UserError(f"unknown planner {name!r}; choose from {', '.join(table)}, field")
     return table[name](core, options, seed)

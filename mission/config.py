@@ -22,7 +22,7 @@ from capm_field.errors import UserError
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
 
-PLANNER_NAMES = ("a", "b", "c", "cstar")
+PLANNER_NAMES = ("a", "b", "c", "cstar", "field")
 
 
 class MissionError(UserError):

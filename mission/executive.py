@@ -243,11 +243,23 @@ class Executive:
             raise _Skip(f"arm_motion_failed:{r.reason}")
 
     # ---- per target ------------------------------------------------------------------------
-    def _observe(self, tid: str, troi: TROI, body: SE2, r_eff: float) -> np.ndarray | None:
-        """Arm to an NSV pose, capture, detect; one re-observation from an adjusted pose."""
+    def _observe(
+        self, tid: str, troi: TROI, body: SE2, r_eff: float, view_q: np.ndarray | None = None, also: list[TROI] | None = None
+    ) -> tuple[np.ndarray | None, dict[str, tuple[float, float]]]:
+        """Arm to an NSV pose, capture, detect (the target, and `also` TROIs seen in the same
+        image); one re-observation from an adjusted pose. Returns (MPOI or None, also_seen)."""
+        also_seen: dict[str, tuple[float, float]] = {}
         for attempt in range(2):
             self._hook("observe")
-            sol = None if self._take("ik_fail") else self.view.solve(body, troi.xy, r_eff, variant=attempt)
+            sol = None
+            if self._take("ik_fail"):
+                sol = None
+            elif view_q is not None and attempt == 0:
+                here = self.d.body.state().pose  # the planned view, if it still holds from where we stand
+                ok, area, T_cam = self.view.nsv(here, np.asarray(view_q, float), np.array(troi.xy), r_eff)
+                sol = ArmSolution(np.asarray(view_q, float), T_cam, {"area_ratio": area}) if ok else None
+            if sol is None and not (attempt == 0 and "ik_fail" in self._directives):
+                sol = self.view.solve(body, troi.xy, r_eff, variant=attempt)
             if sol is None:
                 self._event("warning", f"{tid}: no NSV arm pose from here (attempt {attempt + 1})", target=tid)
                 continue
@@ -260,22 +272,30 @@ class Executive:
                 continue
             st_b, st_a = self.d.body.state(), self.d.arm.state()
             T_cam = self.robot.T_field_base(st_b.pose) @ st_a.camera_pose
-            roi = self._roi(T_cam, troi)
-            det = self.detect(frame.image, roi=roi)
-            if self._take("detector_miss"):
-                det = type(det)(None, 0.0, "no_plant")
-            mpoi = None
-            if det.pixel is not None:
-                g = self.camera.pixel_to_ground(T_cam, np.array([det.pixel]))[0]
-                if np.all(np.isfinite(g)):
-                    mpoi = g
             if self.log:
                 self.log.image(self.now_ns(), frame.image, tid)
-                self.log.detection(self.now_ns(), tid, det.pixel, det.confidence, det.reason, tuple(mpoi) if mpoi is not None else None)
+            miss = self._take("detector_miss")
+            mpoi = None if miss else self._detect_in(frame.image, T_cam, troi, tid)
+            for other in also or []:
+                m = self._detect_in(frame.image, T_cam, other, other.id)
+                if m is not None:
+                    also_seen[other.id] = (float(m[0]), float(m[1]))
             if mpoi is not None:
-                return mpoi
-            self._event("warning", f"{tid}: detection failed ({det.reason}), attempt {attempt + 1}", target=tid)
-        return None
+                return mpoi, also_seen
+            self._event("warning", f"{tid}: detection failed, attempt {attempt + 1}", target=tid)
+        return None, also_seen
+
+    def _detect_in(self, image: np.ndarray, T_cam: np.ndarray, troi: TROI, tid: str) -> np.ndarray | None:
+        """Detect the MPOI of one TROI in an image; the field point via H⁻¹, or None."""
+        det = self.detect(image, roi=self._roi(T_cam, troi))
+        mpoi = None
+        if det.pixel is not None:
+            g = self.camera.pixel_to_ground(T_cam, np.array([det.pixel]))[0]
+            if np.all(np.isfinite(g)):
+                mpoi = g
+        if self.log:
+            self.log.detection(self.now_ns(), tid, det.pixel, det.confidence, det.reason, tuple(mpoi) if mpoi is not None else None)
+        return mpoi
 
     def _roi(self, T_cam: np.ndarray, troi: TROI):
         try:
@@ -397,7 +417,7 @@ class Executive:
             mpoi = np.array(troi.xy)  # deterministic: assume X̄_w = X_w, no look
         else:
             self._set_phase(i, n, tid, "observe")
-            mpoi = self._observe(tid, troi, x1, self.core.effective_radius(troi.r))
+            mpoi, _ = self._observe(tid, troi, x1, self.core.effective_radius(troi.r))
             if mpoi is None:
                 raise _Skip("detection_failed")
         res.mpoi_detected = [float(mpoi[0]), float(mpoi[1])]
@@ -452,10 +472,105 @@ class Executive:
 
     aim_tolerance = 0.03  # m: the flame must pass within 3 cm of the true centre
 
+    # ---- field planner: one loop over the planner's own sequence ---------------------------
+    def _field_target(self, i: int, n: int, plan: Plan, res: TargetResult) -> None:
+        """A target under the field planner: its stops may be shared with the previous and next
+        targets (no walk to a midpoint; x_kmax = the flame pose), its view may reveal other MPOIs,
+        and a target whose MPOI is already known has no observation stop."""
+        fp = self.planner
+        troi, tid = plan.troi, plan.troi.id
+        self._tid, self._target_energy, self._moves = tid, 0.0, 0
+        res.p_upper, res.expected_energy = plan.p_upper, plan.expected_cost
+        if self.log:
+            self.log.plan(self.now_ns(), tid, plan)
+        here = self.d.body.state().pose
+        self._ks(tid, KeyState("x_k0", here))
+        x1 = plan.x_b_k1
+        self._set_phase(i, n, tid, "walk to x_b,k1")
+        self._hook("walk")
+        if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
+            x1, c = self._walk(x1)
+            self._target_energy += c
+            self._moves += 1
+        else:
+            x1 = here
+        self._ks(tid, KeyState("x_b,k1", x1))
+        if plan.state("x_e,k2") is not None:
+            self._set_phase(i, n, tid, "observe")
+            also = [fp.trois[k] for k in plan.terms.get("also_observe", []) if k in fp.trois]
+            mpoi, also_seen = self._observe(tid, troi, x1, self.core.effective_radius(troi.r), plan.terms.get("view_q"), also)
+            fp.observed(tid, None if mpoi is None else (float(mpoi[0]), float(mpoi[1])), also_seen)
+            if mpoi is None:
+                raise _Skip("detection_failed")
+            if also_seen:
+                self._event("info", f"{tid}: the same view revealed {sorted(also_seen)}", target=tid)
+        else:
+            mpoi = np.array(fp.known[tid])
+        res.mpoi_detected = [float(mpoi[0]), float(mpoi[1])]
+        out = fp.after_observation(plan, mpoi)
+        res.branch = out.branch
+        body = x1
+        k3 = next((k for k in out.key_states if k.label == "x_b,k3"), None)
+        if k3 is not None:
+            self._set_phase(i, n, tid, "reposition x_b,k3")
+            self._ks(tid, k3)
+            self._hook("reposition")
+            body, c = self._walk(k3.body, forced=True)
+            self._target_energy += c
+            self._moves += 1
+        self._set_phase(i, n, tid, "flame")
+        res.flame_s = self._flame(tid, body, mpoi)
+        res.flamed = True
+        self._hook("stow")
+        self._stow()
+        if tid in self.truth:
+            res.epmc_true = bool(self._epmc_true(body, mpoi, np.asarray(self.truth[tid])))
+
+    def _run_field(self, results: dict[str, TargetResult]) -> list[str]:
+        fp = self.planner
+        order: list[str] = []
+        i = 0
+        while True:
+            plan = fp.next_plan(self.d.body.state().pose, {})
+            if plan is None:
+                break
+            tid = plan.troi.id
+            order.append(tid)
+            self._index = i
+            res = results[tid]
+            e0 = self.total_energy
+            try:
+                self._field_target(i, len(results), plan, res)
+            except _Skip as s:
+                self._safe()
+                res.reason, res.branch = s.reason, ("skipped" if not res.flamed else res.branch)
+                self._event("warning", f"{tid}: skipped ({s.reason})", target=tid, reason=s.reason)
+                try:
+                    self._stow()
+                except _Skip:
+                    pass
+            fp.done(tid, res.flamed)
+            res.energy = self.total_energy - e0
+            res.body_moves = self._moves
+            i += 1
+        here = self.d.body.state().pose
+        if here.distance(self.end) > self.robot.cfg.body.position_tolerance:
+            self._set_phase(i, len(results), "-", "walk to end")
+            self._walk(self.end)
+        return order
+
     # ---- the mission -----------------------------------------------------------------------
     def run(self) -> MissionResult:
+        if getattr(self.planner, "name", "") == "field":
+            return self._run_with(self._field_order)
+        return self._run_with(None)
+
+    def _field_order(self) -> list[TROI]:
+        return self.planner.start(self.trois, self.start, self.end)
+
+    def _run_with(self, field_order) -> MissionResult:
         t0 = time.perf_counter()
-        ordered = order_trois(self.trois, self.start.xy, self.end.xy)
+        ordered = field_order() if field_order else order_trois(self.trois, self.start.xy, self.end.xy)
         results = [TargetResult(t.id, [t.x, t.y, t.r], mpoi_true=list(map(float, self.truth[t.id])) if t.id in self.truth else None) for t in ordered]
         if self.log:
             for t in ordered:
@@ -466,7 +581,12 @@ class Executive:
         aborted = None
         try:
             self._check_startup()
-            for i, troi in enumerate(ordered):
+            if field_order is not None:
+                by_id = {r.id: r for r in results}
+                visited = self._run_field(by_id)
+                results = [by_id[t] for t in visited] + [r for r in results if r.id not in visited]
+                ordered = [next(t for t in self.trois if t.id == r.id) for r in results]
+            for i, troi in enumerate(ordered if field_order is None else []):
                 self._index = i
                 x_kmax = self._x_kmax(ordered, i)
                 res = results[i]
