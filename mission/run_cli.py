@@ -74,7 +74,7 @@ def _open_drivers(mission: Mission, robot, trois, seed: int | None, mission_dir:
         from sim_bench.bench_drivers import open_bench_drivers  # dynamic choice, the executive can't tell
 
         s = mission.drivers.seed if seed is None else seed
-        return open_bench_drivers(robot, mission.task, trois, mission.start.se2(), s, mission.drivers.mpoi_in_troi)
+        return open_bench_drivers(robot, mission.task, trois, mission.start.se2(), s, mission.drivers.mpoi_in_troi, mission.drivers.transport)
     mod = importlib.import_module("drivers.hardware")
     return mod.open_hardware_drivers(mission, robot, mission_dir)
 
@@ -114,7 +114,7 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     world = drivers.extras.get("world")
     truth = world.truth if world is not None else {}
-    if world is not None:
+    if world is not None and not getattr(world.clock, "realtime", False):
         clock = world.clock
         wall0 = time.time_ns()
 
@@ -135,6 +135,10 @@ def main(argv: list[str]) -> int:
             drivers.close()
             log.close()
             raise
+        if faults and getattr(world, "transport", "inprocess") != "inprocess":
+            drivers.close()
+            log.close()
+            raise UserError("drivers.faults: fault schedules run on the in-process bench (transport: inprocess); wire-level faults are exercised by the driver tests")
         if faults:
             injector = FaultInjector(faults, drivers, log_event=lambda lvl, msg: log.event(now_ns(), lvl, msg))
             hook = injector.on

@@ -10,7 +10,8 @@ arm's actual camera pose (body pose ⊕ arm FK), so the executive sees what the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,15 +33,39 @@ class BenchClock(SimClock):
         self.sleep(dt)
 
 
+class WallClock:
+    """The wire-level bench runs in real time: the robot sides have their own loops."""
+
+    realtime = True
+
+    def now_ns(self) -> int:
+        return time.monotonic_ns()
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, dt: float) -> None:
+        time.sleep(max(0.0, dt))
+
+    advance = sleep
+
+
 @dataclass
 class BenchWorld:
     clock: BenchClock
     truth: dict[str, tuple[float, float]]
     scene: object
     faults: object | None = None
+    transport: str = "inprocess"
+    closers: list = field(default_factory=list)  # wire level: the robot sides, closed after the adapters
 
-    def close(self) -> None:  # DriverSet.extras are closed with the set
-        pass
+    def close(self) -> None:  # DriverSet.extras are closed with the set (after the drivers)
+        for c in self.closers:
+            try:
+                c()
+            except Exception:  # noqa: BLE001 - close the rest regardless
+                pass
+        self.closers.clear()
 
 
 def sample_mpois(trois: list[TROI], task: TaskConfig, seed: int, in_troi: bool) -> dict[str, tuple[float, float]]:
@@ -60,8 +85,17 @@ def sample_mpois(trois: list[TROI], task: TaskConfig, seed: int, in_troi: bool) 
     return out
 
 
-def open_bench_drivers(robot: RobotModel, task: TaskConfig, trois: list[TROI], start: SE2, seed: int, mpoi_in_troi: bool = True) -> DriverSet:
-    """In-process bench DriverSet; `extras['world']` holds the clock and the truth."""
+def open_bench_drivers(
+    robot: RobotModel, task: TaskConfig, trois: list[TROI], start: SE2, seed: int, mpoi_in_troi: bool = True, transport: str = "inprocess"
+) -> DriverSet:
+    """Bench DriverSet; `extras['world']` holds the clock and the truth.
+
+    transport 'inprocess': simulated drivers on one simulated clock (fast, deterministic).
+    transport 'wire': the real adapters — ZenohBody over loopback zenoh to the simulated robot
+    side, CanArm/CanIgniter over the python-can virtual bus to the simulated gateway — in real time.
+    """
+    if transport == "wire":
+        return _open_wire(robot, task, trois, start, seed, mpoi_in_troi)
     from .field_scene import FieldScene
     from .sim_arm import SimArmDriver
     from .sim_body import SimBody, SimBodyDriver
@@ -88,4 +122,45 @@ def open_bench_drivers(robot: RobotModel, task: TaskConfig, trois: list[TROI], s
 
     camera = SimCamera(scene, camera_pose, robot.cfg.camera, clock_ns=clock.now_ns)
     world = BenchWorld(clock, truth, scene)
+    return DriverSet(body, arm, igniter, camera, extras={"world": world})
+
+
+def _scene(trois: list[TROI], truth: dict, start: SE2, seed: int):
+    from .field_scene import FieldScene
+
+    rng = np.random.default_rng(seed)
+    kinds = ("rosette", "seedling", "grass", "clover")
+    weeds = [dict(x=truth[t.id][0], y=truth[t.id][1], kind=str(rng.choice(kinds)), troi_centre=(t.x, t.y), troi_radius=t.r) for t in trois]
+    xs = [t.x for t in trois] + [start.x]
+    ys = [t.y for t in trois] + [start.y]
+    return FieldScene.generate(seed, weeds=weeds, area=(min(xs) - 1.5, min(ys) - 1.5, max(xs) + 1.5, max(ys) + 1.5))
+
+
+def _open_wire(robot: RobotModel, task: TaskConfig, trois: list[TROI], start: SE2, seed: int, mpoi_in_troi: bool) -> DriverSet:
+    from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
+
+    from .can_rig import CanBench
+    from .sim_camera import SimCamera
+    from .zenoh_body_server import free_port, serve_sim_body
+
+    clock = WallClock()
+    truth = sample_mpois(trois, task, seed, mpoi_in_troi)
+    scene = _scene(trois, truth, start, seed)
+    world = BenchWorld(clock, truth, scene, transport="wire")
+    port = free_port()
+    server = serve_sim_body("bench", [f"tcp/127.0.0.1:{port}"], seed=seed, body=robot.cfg.body, pose=start)
+    world.closers.append(server.close)
+    try:
+        can_bench = CanBench(robot=robot)
+        world.closers.insert(0, can_bench.robot_side.close)
+        body = ZenohBody(ZenohBodyConfig.loopback(port, "bench"))
+    except BaseException:
+        world.close()
+        raise
+    arm, igniter = can_bench.arm, can_bench.igniter
+
+    def camera_pose() -> np.ndarray:
+        return robot.T_field_base(body.state().pose) @ arm.state().camera_pose
+
+    camera = SimCamera(scene, camera_pose, robot.cfg.camera, clock_ns=clock.now_ns)
     return DriverSet(body, arm, igniter, camera, extras={"world": world})

@@ -87,6 +87,7 @@ def serve_sim_body(
     body: BodyConfig | None = None,
     link: LinkConfig | None = None,
     config_file: str | None = None,
+    pose: SE2 | None = None,
 ) -> SimBodyBench:
     """Start serving a real-time SimBody in this process (the server runs its own thread).
     Loopback endpoints only (ValueError otherwise): the bench is never reachable from outside."""
@@ -94,7 +95,7 @@ def serve_sim_body(
     outside = [e for e in link.listen if not is_loopback_endpoint(e)]
     if outside or not link.listen:
         raise ValueError(f"the bench listens on loopback only (127.0.0.1 / ::1), got {list(link.listen)}")
-    sim = SimBody(config=body, clock=SimClock(realtime=True), seed=seed)
+    sim = SimBody(config=body, clock=SimClock(realtime=True), seed=seed, **({"pose": pose} if pose is not None else {}))
     cfg = ServerConfig(
         robot_id=robot_id,
         link=link,
