@@ -22,9 +22,9 @@ import numpy as np
 
 from capm_field.camera import PinholeCamera
 
-from .noise import fractal, hash_u01
+from .noise import hash_u01
 from .plants import WEED_KINDS, Plant, make_plant
-from .soil import CELL, SoilStyle, cell_objects, draw_parts, soft_polygon_alpha, soil_colour
+from .soil import CELL, SoilStyle, cell_objects, draw_parts, ground_fields, soft_polygon_alpha
 
 BASE_RES = 0.0005  # m per texture pixel at level 0
 TILE = 256
@@ -221,9 +221,8 @@ class FieldScene:
         X0, Y0 = ix * S, iy * S
         xs = X0 + (np.arange(TILE) + 0.5) * res
         ys = Y0 + (np.arange(TILE) + 0.5) * res
-        img = soil_colour(self.seed, self.soil, xs, ys, res)
+        img, tex = ground_fields(self.seed, self.soil, xs, ys, res)
         sun = np.asarray(self.lighting.sun, float)
-        tex = fractal(self.seed, 9, xs, ys, 0.02, max(2 * res, 0.001), 0.6).astype(np.float32) if res < 0.004 else np.zeros((TILE, TILE), np.float32)
         m = 0.08  # largest object reach beyond its cell
         cells = [
             (cx, cy)
@@ -237,9 +236,13 @@ class FieldScene:
         for i in ids:
             draw_parts(img, X0, Y0, res, self.plants[i].parts, sun, tex)
         for sh in self.shadows:
-            a = soft_polygon_alpha(sh.polygon, sh.softness, xs, ys).astype(np.float32)
+            P = np.asarray(sh.polygon, float)
+            reach = 0.5 * sh.softness + res
+            if P[:, 0].max() + reach < X0 or P[:, 0].min() - reach > X0 + S or P[:, 1].max() + reach < Y0 or P[:, 1].min() - reach > Y0 + S:
+                continue
+            a = soft_polygon_alpha(P, sh.softness, xs, ys)
             if a.any():
-                img *= (1 - sh.strength * a)[..., None] * np.float32([1.08, 1.0, 0.94]) + np.float32(0) * a[..., None]
+                img *= (1 - sh.strength * a)[..., None] * np.float32([1.08, 1.0, 0.94])
         return np.clip(img, 0, 255).astype(np.uint8)
 
     # ---- rendering ---------------------------------------------------------------------------
@@ -275,13 +278,57 @@ def choose_level(camera: PinholeCamera, T: np.ndarray) -> tuple[int, np.ndarray]
     return level, np.r_[pts.min(0), pts.max(0)]
 
 
-def _mosaic(scene: FieldScene, level: int, bbox: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _needed_tiles(camera: PinholeCamera, T: np.ndarray, level: int, i0: int, j0: int, ni: int, nj: int) -> np.ndarray:
+    """(nj, ni) bool: the tiles of the mosaic that the warp will actually sample.
+
+    Image pixels on an 8-px grid (plus the far borders) are mapped to texels through H⁻¹; every
+    tile within the local grid spacing (+2 texels for the bilinear footprint) of one is needed.
+    The other tiles (outside the view but inside the footprint's bounding box) are never built.
+    Views reaching the horizon build every tile.
+    """
+    res = BASE_RES * 2**level
+    w, h = camera.width, camera.height
+    us = np.r_[np.arange(-0.5, w - 0.5, 8.0), w - 0.5]
+    vs = np.r_[np.arange(-0.5, h - 0.5, 8.0), h - 0.5]
+    uu, vv = np.meshgrid(us, vs)
+    g = camera.pixel_to_ground(T, np.c_[uu.ravel(), vv.ravel()]).reshape(len(vs), len(us), 2)
+    P = g / res - 0.5  # global texel coordinates
+    if not np.isfinite(P).all():
+        return np.ones((nj, ni), bool)
+    d = np.zeros(P.shape[:2])
+    dx = np.linalg.norm(np.diff(P, axis=1), axis=2)
+    dy = np.linalg.norm(np.diff(P, axis=0), axis=2)
+    d[:, :-1] = np.maximum(d[:, :-1], dx)
+    d[:, 1:] = np.maximum(d[:, 1:], dx)
+    d[:-1, :] = np.maximum(d[:-1, :], dy)
+    d[1:, :] = np.maximum(d[1:, :], dy)
+    if d.max() >= TILE / 2:
+        return np.ones((nj, ni), bool)
+    P, m = P.reshape(-1, 2), d.ravel() + 2.0
+    need = np.zeros((nj, ni), bool)
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            ti = np.floor((P[:, 0] + sx * m) / TILE).astype(np.int64) - i0
+            tj = np.floor((P[:, 1] + sy * m) / TILE).astype(np.int64) - j0
+            sel = (ti >= 0) & (ti < ni) & (tj >= 0) & (tj < nj)
+            need[tj[sel], ti[sel]] = True
+    return need
+
+
+def _mosaic(scene: FieldScene, level: int, bbox: np.ndarray, need: np.ndarray | None = None, fill=(0, 0, 0)) -> tuple[np.ndarray, np.ndarray]:
+    """Tiles under `bbox` at `level` as one image (tiles not in `need` are filled with `fill`)."""
     res = BASE_RES * 2**level
     S = TILE * res
     i0, j0 = math.floor(bbox[0] / S), math.floor(bbox[1] / S)
     i1, j1 = math.floor(bbox[2] / S), math.floor(bbox[3] / S)
-    rows = [np.concatenate([scene.tile(level, i, j) for i in range(i0, i1 + 1)], axis=1) for j in range(j0, j1 + 1)]
-    M = np.concatenate(rows, axis=0)
+    M = np.empty(((j1 - j0 + 1) * TILE, (i1 - i0 + 1) * TILE, 3), np.uint8)
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
+            blk = M[(j - j0) * TILE : (j - j0 + 1) * TILE, (i - i0) * TILE : (i - i0 + 1) * TILE]
+            if need is None or need[j - j0, i - i0]:
+                blk[:] = scene.tile(level, i, j)
+            else:
+                blk[:] = fill
     # mosaic pixel (col, row) → field point, pixel centres at integers
     A = np.array([[res, 0, i0 * S + 0.5 * res], [0, res, j0 * S + 0.5 * res], [0, 0, 1.0]])
     return M, A
@@ -303,9 +350,13 @@ def render(scene: FieldScene, T_field_cam: np.ndarray, camera: PinholeCamera) ->
         if npx <= MAX_MOSAIC_PX or level >= MAX_LEVEL:
             break
         level += 1
-    M, A = _mosaic(scene, level, bbox)
-    Himg = camera.homography(T) @ A
     haze = np.asarray(scene.soil.colour_a, float) * 0.5 + np.asarray(scene.soil.colour_b, float) * 0.5
+    S = TILE * BASE_RES * 2**level
+    i0, j0 = math.floor(bbox[0] / S), math.floor(bbox[1] / S)
+    ni, nj = math.floor(bbox[2] / S) - i0 + 1, math.floor(bbox[3] / S) - j0 + 1
+    need = _needed_tiles(camera, T, level, i0, j0, ni, nj)
+    M, A = _mosaic(scene, level, bbox, need, tuple(int(v) for v in np.clip(haze, 0, 255)))
+    Himg = camera.homography(T) @ A
     img = cv2.warpPerspective(M, Himg, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=tuple(float(v) for v in haze))
     # rays that miss the ground (above the horizon) see sky
     Rz = (T[:3, :3] @ np.linalg.inv(camera.K))[2]

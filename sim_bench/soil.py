@@ -13,7 +13,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from .noise import fractal
+from .noise import LATTICE_UNIT, fractal_grid
 from .plants import Part, dead_leaf, leaf_outline
 
 CELL = 0.25  # m: cell size of the per-cell object generator and of the plant index
@@ -50,39 +50,54 @@ class SoilStyle:
 
 
 def soil_colour(seed: int, style: SoilStyle, xs: np.ndarray, ys: np.ndarray, res: float) -> np.ndarray:
-    """Soil colour (len(ys), len(xs), 3) float32 at pixel-centre coordinates (m)."""
+    """Soil colour (len(ys), len(xs), 3) float32 at pixel-centre coordinates (m).
+
+    xs, ys: texel centres of a regular grid of pitch `res` = LATTICE_UNIT·2^l aligned with the
+    texel lattice (as the renderer's tiles are). See `ground_fields` for the texture channel.
+    """
+    return ground_fields(seed, style, xs, ys, res)[0]
+
+
+def ground_fields(seed: int, style: SoilStyle, xs: np.ndarray, ys: np.ndarray, res: float) -> tuple[np.ndarray, np.ndarray]:
+    """(soil colour (h, w, 3), leaf texture (h, w)) float32, every noise field in one pass.
+
+    All octaves come from `noise.fractal_grid` (hierarchical power-of-two lattices): hue and
+    moisture patches, clods and crevices, grain where a texel is small enough to show it, and the
+    fine texture modulating leaves and residue.
+    """
     fine = max(2 * res, 0.002)
-    hue = _smooth(seed, 1, xs, ys, res, 0.4, max(0.05, fine), 0.5)
-    moist = _smooth(seed, 2, xs, ys, res, 1.2, max(0.15, fine), 0.5)
-    clod = fractal(seed, 3, xs, ys, 0.06, fine, 0.6)
-    out = np.empty((len(ys), len(xs), 3), np.float32)
+    level_q = int(round(math.log2(res / LATTICE_UNIT)))
+    gx0 = int(round(xs[0] / res - 0.5))
+    gy0 = int(round(ys[0] / res - 0.5))
+    fields = [(1, 0.4, max(0.05, fine), 0.5), (2, 1.2, max(0.15, fine), 0.5), (3, 0.06, fine, 0.6)]
+    grain_on = res <= 0.0015
+    tex_on = res < 0.004
+    if grain_on:
+        fields.append((4, 0.004, fine, 0.7))
+    if tex_on:
+        fields.append((9, 0.02, max(2 * res, 0.001), 0.6))
+    F = fractal_grid(seed, fields, gx0, gy0, len(xs), len(ys), level_q)
+    hue, moist, clod = F[..., 0], F[..., 1], F[..., 2]
+    f32 = np.float32
+    mix = np.minimum(np.maximum(hue * f32(0.35) + f32(0.5), f32(0)), f32(1))
+    lum = np.minimum(np.maximum(moist * f32(0.8), f32(0)), f32(1))
+    lum *= f32(-0.45 * style.moisture)
+    lum += f32(1)  # 1 − 0.45·m
+    lum *= clod * f32(0.22 * style.clod) + f32(1)
+    crev = np.maximum(-clod - f32(0.9), f32(0))
+    np.minimum(crev, f32(2), out=crev)
+    lum *= f32(1) - crev * f32(0.35 * style.clod)
+    if grain_on:  # grain only where a pixel is small enough to show it
+        grain = F[..., 3]
+        lum *= grain * f32(0.07) + f32(1)
+        lum += np.minimum(np.maximum(grain - f32(1.6), f32(0)), f32(1)) * f32(0.10)
     a = np.asarray(style.colour_a, np.float32)
     b = np.asarray(style.colour_b, np.float32)
-    mix = np.clip(0.5 + 0.35 * hue, 0, 1)
-    m = np.clip(moist * 0.8, 0, 1) * style.moisture
-    crevice = np.clip(-clod - 0.9, 0, 2) * 0.35 * style.clod
-    lum = (1 - 0.45 * m) * (1 + 0.22 * style.clod * clod) * (1 - crevice)
-    if res <= 0.0015:  # grain only where a pixel is small enough to show it
-        grain = fractal(seed, 4, xs, ys, 0.004, fine, 0.7)
-        lum = lum * (1 + 0.07 * grain) + 0.10 * np.clip(grain - 1.6, 0, 1)
+    out = np.empty(lum.shape + (3,), np.float32)
     for c in range(3):
-        out[..., c] = (a[c] + (b[c] - a[c]) * mix) * lum
-    return out
-
-
-def _smooth(seed: int, ch: int, xs: np.ndarray, ys: np.ndarray, res: float, coarsest: float, finest: float, gain: float) -> np.ndarray:
-    """Low-frequency fractal noise computed on a 4× coarser grid (one pixel margin) and upsampled.
-
-    Low-res pixel j has its centre at xs[0] + (4j − 2)·res, so after a 4× resize and dropping 4
-    pixels each side every full-res pixel sits at its own centre (no seam between tiles).
-    """
-    if finest < 16 * res or len(xs) % 4 or len(ys) % 4:
-        return fractal(seed, ch, xs, ys, coarsest, finest, gain)
-    xl = xs[0] - 0.5 * res + (np.arange(len(xs) // 4 + 2) - 0.5) * 4 * res
-    yl = ys[0] - 0.5 * res + (np.arange(len(ys) // 4 + 2) - 0.5) * 4 * res
-    low = fractal(seed, ch, xl, yl, coarsest, finest, gain).astype(np.float32)
-    up = cv2.resize(low, (len(xl) * 4, len(yl) * 4), interpolation=cv2.INTER_LINEAR)
-    return up[4:-4, 4:-4]
+        np.multiply(mix * f32(b[c] - a[c]) + f32(a[c]), lum, out=out[..., c])
+    tex = np.ascontiguousarray(F[..., -1]) if tex_on else np.zeros(lum.shape, np.float32)
+    return out, tex
 
 
 def cell_objects(seed: int, style: SoilStyle, cx: int, cy: int) -> tuple[Part, ...]:
@@ -140,6 +155,12 @@ def draw_parts(
     for p in parts:
         px = (p.poly - (X0, Y0)) / res - 0.5
         off = sun * p.height / res
+        # cull: neither the part nor its (blurred) shadow reaches this tile
+        reach = 3 * max(0.6, 0.25 * p.height / res) + 2
+        lo_ = px.min(axis=0) - reach + np.minimum(off, 0)
+        hi_ = px.max(axis=0) + reach + np.maximum(off, 0)
+        if hi_[0] < 0 or hi_[1] < 0 or lo_[0] > w or lo_[1] > h:
+            continue
         if abs(off[0]) + abs(off[1]) > 0.7:
             sig = max(0.6, 0.25 * p.height / res)
             _shadow(img, px + off, sig, 0.42)
@@ -183,7 +204,8 @@ def _shadow(img: np.ndarray, px: np.ndarray, sigma: float, strength: float) -> N
 def _shade(p: Part, b: np.ndarray, t: np.ndarray, x0: int, y0: int, w: int, h: int, tex: np.ndarray) -> np.ndarray:
     d = t - b
     L = float(np.hypot(*d)) + 1e-6
-    gx, gy = np.meshgrid(np.arange(x0, x0 + w, dtype=np.float32) - b[0], np.arange(y0, y0 + h, dtype=np.float32) - b[1])
+    gx = (np.arange(x0, x0 + w, dtype=np.float32) - np.float32(b[0]))[None, :]
+    gy = (np.arange(y0, y0 + h, dtype=np.float32) - np.float32(b[1]))[:, None]
     along = (gx * d[0] + gy * d[1]) / (L * L)
     across = (gx * d[1] - gy * d[0]) / L
     base = np.asarray(p.colour, np.float32)
@@ -203,16 +225,18 @@ def _shade(p: Part, b: np.ndarray, t: np.ndarray, x0: int, y0: int, w: int, h: i
 
 
 def soft_polygon_alpha(poly: np.ndarray, softness: float, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
-    """Soft-edged coverage (0..1) of a convex polygon (m) on the grid ys × xs."""
+    """Soft-edged coverage (0..1) of a convex polygon (m) on the grid ys × xs, float32."""
     P = np.asarray(poly, float)
     cen = P.mean(axis=0)
-    sd = np.full((len(ys), len(xs)), np.inf)
-    X, Y = np.meshgrid(xs, ys)
+    X = np.asarray(xs, np.float32)[None, :]
+    Y = np.asarray(ys, np.float32)[:, None]
+    sd = np.full((len(ys), len(xs)), np.inf, np.float32)
     for i in range(len(P)):
         a, b = P[i], P[(i + 1) % len(P)]
         e = b - a
         n = np.array([e[1], -e[0]]) / (np.hypot(*e) + 1e-12)
         if np.dot(cen - a, n) < 0:
             n = -n
-        sd = np.minimum(sd, (X - a[0]) * n[0] + (Y - a[1]) * n[1])
-    return np.clip(0.5 + sd / max(softness, 1e-6), 0, 1)
+        c = np.float32(-(a[0] * n[0] + a[1] * n[1]))
+        np.minimum(sd, X * np.float32(n[0]) + Y * np.float32(n[1]) + c, out=sd)
+    return np.clip(0.5 + sd / np.float32(max(softness, 1e-6)), 0, 1)
