@@ -205,7 +205,7 @@ class Executive:
         before = self.d.body.state().pose
         self._tf()
         r = self.d.body.move_to(goal, self.timeouts["body"])
-        after = self.d.body.state().pose
+        after = self._settled_pose(r.final)
         self._tf()
         c = energy.cost(before, after, self.task, force_move=forced)
         self.total_energy += c
@@ -220,7 +220,7 @@ class Executive:
             # tolerance only). One corrective move, charged like any other.
             self._event("warning", f"{self._tid}: arrived {err:.3f} m off the goal (slip?), correcting once", target=self._tid)
             r = self.d.body.move_to(goal, self.timeouts["body"])
-            fixed = self.d.body.state().pose
+            fixed = self._settled_pose(r.final)
             self._tf()
             c2 = energy.cost(after, fixed, self.task)
             self.total_energy += c2
@@ -229,6 +229,21 @@ class Executive:
                 raise _Skip(f"body_off_goal:{fixed.distance(goal):.3f}m")
             after = fixed
         return after, c
+
+    def _settled_pose(self, final: object, timeout_s: float = 0.5) -> SE2:
+        """The body pose after a move, from a state that postdates the arrival: a state stream
+        (zenoh, 100 Hz) may still hold a pre-arrival sample when the move's result comes in, and a
+        flame pose solved from a stale pose would miss its aim."""
+        st = self.d.body.state()
+        if not isinstance(final, SE2) or (st.pose.distance(final) < 2e-3 and not st.moving):
+            return st.pose
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            time.sleep(0.01)
+            st = self.d.body.state()
+            if st.pose.distance(final) < 2e-3 and not st.moving:
+                break
+        return st.pose
 
     def _arm_to(self, sol: ArmSolution) -> None:
         r = self.d.arm.move_joints(sol.q, self.timeouts["arm"])
