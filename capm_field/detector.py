@@ -35,6 +35,7 @@ WORK_PX = 320  # stage 1 (find the plant): longest side of the search window aft
 PLANT_PX = 80  # stage 2 (find its centre): plant bounding box resampled to about this size
 ROI_MARGIN = 1.15  # leaves may overhang the TROI; the centre must lie inside it
 GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
+BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
 
 
 @dataclass(frozen=True)
@@ -204,15 +205,13 @@ def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
 
     inside = np.ones(gray.shape, bool)
     if roi is not None:
-        jj, ii = np.meshgrid(np.arange(small.shape[1]), np.arange(small.shape[0]))
-        full = np.c_[x0 + (jj.ravel() + 0.5) * sx - 0.5, y0 + (ii.ravel() + 0.5) * sy - 0.5]
-        inside = roi.contains(full, ROI_MARGIN).reshape(gray.shape)
+        inside = _roi_mask(roi, gray.shape, x0, y0, sx, sy)
         if inside.sum() < 16:
             return bad
 
     # ---- vegetation mask
     gains = soil_gains(small, inside)
-    vi = cv2.GaussianBlur(vegetation_index(small, gains=gains), (0, 0), 0.8)
+    vi = pooled_index(crop, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1)
     thr, soil_level, contrast = _threshold(vi[inside])
     mask = _hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
@@ -288,15 +287,34 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
     return np.clip(g / g[1], 0.6, 1.6).astype(np.float32)
 
 
+def _roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float, sy: float) -> np.ndarray:
+    """The ROI ellipse grown by ROI_MARGIN, rasterised on a grid whose pixel (i, j) is the full
+    image point (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
+    c, ax, ang = roi.params()
+    t = math.radians(ang)
+    # grid ← full: affine and axis-aligned scaling, so the ellipse maps to an ellipse exactly
+    # unless sx ≠ sy (then approximately; both are within a pixel of each other)
+    cg = ((c[0] - x0 + 0.5) / sx - 0.5, (c[1] - y0 + 0.5) / sy - 0.5)
+    s_ = math.sqrt(sx * sy)
+    m = np.zeros(shape, np.uint8)
+    S = 16
+    cv2.ellipse(m, (int(round(cg[0] * S)), int(round(cg[1] * S))),
+                (max(1, int(round(ROI_MARGIN * ax[0] / s_ * S))), max(1, int(round(ROI_MARGIN * ax[1] / s_ * S)))),
+                math.degrees(t), 0, 360, 1, -1, cv2.LINE_8, 4)
+    return m.astype(bool)
+
+
 def greenness(bgr: np.ndarray) -> np.ndarray:
     """G* = (G − max(R, B)) / (B + G + R + 30): positive only where green dominates.
 
     Live leaves reflect green more than red and blue; soil, stones, straw and dead leaves do not.
     The +30 keeps sensor noise in dark shadows from looking green.
     """
-    f = bgr.astype(np.float32)
-    b, g, r = f[..., 0], f[..., 1], f[..., 2]
-    return (g - np.maximum(r, b)) / (b + g + r + 30.0)
+    f = bgr if bgr.dtype == np.float32 else bgr.astype(np.float32)
+    b, g, r = cv2.split(f) if f.ndim == 3 and f.shape[2] == 3 and f.flags.c_contiguous else (f[..., 0], f[..., 1], f[..., 2])
+    num = cv2.subtract(g, cv2.max(r, b))
+    den = cv2.add(cv2.add(b, g), cv2.add(r, 30.0))
+    return cv2.divide(num, den)
 
 
 def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: np.ndarray | None = None) -> np.ndarray:
@@ -304,6 +322,34 @@ def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: n
     if gains is None:
         gains = soil_gains(bgr, inside)
     return greenness(bgr.astype(np.float32) * gains)
+
+
+MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is computed on (stage 1)
+MID_PX_STAGE2 = 120_000  # same for the plant crop (stage 2)
+
+
+def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int) -> np.ndarray:
+    """Vegetation index of `bgr` on a coarser grid `size` (w, h), thin parts kept (max-pooling).
+
+    Averaging colours before judging greenness dilutes 1–2 px stems, petioles and grass blades
+    into the soil. The index is computed at an intermediate resolution (the input itself if it
+    has at most `mid_px` pixels, else downscaled to that), lightly smoothed against sensor noise,
+    then max-pooled (grey dilation over one output cell, then area resampling) to `size`.
+    """
+    h, w = bgr.shape[:2]
+    nw, nh = size
+    g = max(1.0, math.sqrt(h * w / mid_px))
+    if g > 1.0:
+        mid = cv2.resize(bgr, (max(1, round(w / g)), max(1, round(h / g))), interpolation=cv2.INTER_AREA)
+    else:
+        mid = bgr
+    vi = cv2.GaussianBlur(vegetation_index(mid, gains=gains), (0, 0), 0.7)
+    f = mid.shape[1] / nw
+    if f <= 1.25:
+        return cv2.resize(vi, (nw, nh), interpolation=cv2.INTER_LINEAR) if (nw, nh) != (mid.shape[1], mid.shape[0]) else vi
+    k = int(round(f))
+    vi = cv2.dilate(vi, np.ones((k, k), np.uint8))
+    return cv2.resize(vi, (nw, nh), interpolation=cv2.INTER_AREA)
 
 
 def _threshold(v: np.ndarray) -> tuple[float, float, float]:
@@ -373,14 +419,11 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     k = PLANT_PX / max(bx1 - bx0, by1 - by0)
     nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
     interp = cv2.INTER_AREA if k < 1 else cv2.INTER_LINEAR
-    pc = cv2.resize(crop, (nw, nh), interpolation=interp)
     kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
-    vi = cv2.GaussianBlur(vegetation_index(pc, gains=gains), (0, 0), 0.8)
+    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2)
     inside = np.ones(vi.shape, bool)
     if roi is not None:
-        jj, ii = np.meshgrid(np.arange(nw), np.arange(nh))
-        full = np.c_[X0 + (jj.ravel() + 0.5) * kx - 0.5, Y0 + (ii.ravel() + 0.5) * ky - 0.5]
-        inside = roi.contains(full, ROI_MARGIN).reshape(vi.shape)
+        inside = _roi_mask(roi, vi.shape, X0, Y0, kx, ky)
     mask = _hysteresis(vi, thr, soil, inside)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if n <= 1:
@@ -393,7 +436,113 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     uv, ntips, sharp = tree_median(plant, vi)
     if uv is None:
         return None, 0, 0.0
+    # plants with broad, rounded parts (clover trefoils, seedlings): trust where thin parts meet,
+    # or the middle of the parts arranged around an empty centre; blades/narrow leaves: tree median
+    dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
+    ys_, xs_ = np.nonzero(plant)
+    roundness = float(dtp[plant].mean()) / math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
+    hub = line_hub(plant) if roundness >= HUB_MIN_ROUND else None
+    if hub is not None and HUB_MODE:
+        uv = hub
+    elif HUB_MODE >= 2 and roundness >= HUB_MIN_ROUND:
+        cm = component_median(plant)
+        if cm is not None:
+            uv = cm
     return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp
+
+
+HUB_MODE = 2
+HUB_MIN_ROUND = 0.022
+
+
+def line_hub(plant: np.ndarray) -> np.ndarray | None:
+    """Where the plant's thin parts (petioles, stems, blades) converge, in mask pixels; or None.
+
+    Thin parts = the mask minus its opening by a disc ~2.5 % of the plant size. Every thin pixel
+    votes along its own direction (structure tensor of the thin mask); the hub is the vote peak.
+    Needs enough thin pixels from at least three directions voting for the peak, and the hub
+    must lie on or next to the plant.
+    """
+    ys, xs = np.nonzero(plant)
+    if len(xs) < 10:
+        return None
+    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+    r = max(1, int(round(HUB_OPEN * size)))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    pm = plant.astype(np.uint8)
+    opened = cv2.morphologyEx(pm, cv2.MORPH_OPEN, k)
+    thin = pm & (cv2.dilate(opened, np.ones((3, 3), np.uint8)) == 0)
+    if int(thin.sum()) < HUB_MIN_LEN * size * 2:
+        return None
+    h, w = plant.shape
+    f = cv2.GaussianBlur(thin.astype(np.float32), (0, 0), 1.0)
+    gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
+    jxx = cv2.GaussianBlur(gx * gx, (0, 0), 1.5)
+    jyy = cv2.GaussianBlur(gy * gy, (0, 0), 1.5)
+    jxy = cv2.GaussianBlur(gx * gy, (0, 0), 1.5)
+    tr = jxx + jyy + 1e-9
+    coh = np.sqrt((jxx - jyy) ** 2 + 4 * jxy**2) / tr
+    ys, xs = np.nonzero(thin & (coh > 0.6))
+    if len(xs) < HUB_MIN_LEN * size:
+        return None
+    phi = 0.5 * np.arctan2(2 * jxy[ys, xs], jxx[ys, xs] - jyy[ys, xs]) + np.pi / 2
+    dx, dy = np.cos(phi), np.sin(phi)
+    L = int(0.7 * size)
+    t = np.arange(-L, L + 1, dtype=np.float32)
+    px = np.rint(xs[:, None] + dx[:, None] * t[None, :]).astype(np.int64)
+    py = np.rint(ys[:, None] + dy[:, None] * t[None, :]).astype(np.int64)
+    ok = (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    acc = np.bincount((py * w + px)[ok], minlength=h * w).reshape(h, w).astype(np.float32)
+    acc = cv2.GaussianBlur(acc, (0, 0), max(1.0, 0.015 * size))
+    iy, ix = np.unravel_index(int(np.argmax(acc)), acc.shape)
+    # support: thin pixels whose line passes near the peak, from ≥ 3 directions
+    ddx, ddy = ix - xs, iy - ys
+    perp = np.abs(ddx * dy - ddy * dx)
+    near = perp < max(1.5, 0.03 * size)
+    if near.sum() < HUB_MIN_LEN * size:
+        return None
+    ang = np.arctan2(ddy[near], ddx[near])
+    far = np.hypot(ddx[near], ddy[near]) > 0.05 * size
+    hist = np.histogram(ang[far], bins=8, range=(-np.pi, np.pi))[0]
+    if np.count_nonzero(hist >= 0.05 * near.sum()) < 3:
+        return None
+    dt = cv2.distanceTransform((1 - pm).astype(np.uint8), cv2.DIST_L2, 3)
+    if dt[iy, ix] > 0.05 * size:
+        return None
+    # sub-pixel: centroid of the peak
+    y0, y1, x0, x1 = max(iy - 2, 0), min(iy + 3, h), max(ix - 2, 0), min(ix + 3, w)
+    win = acc[y0:y1, x0:x1]
+    gy_, gx_ = np.mgrid[y0:y1, x0:x1]
+    wgt = np.clip(win - 0.7 * acc[iy, ix], 0, None)
+    return np.array([(wgt * gx_).sum() / wgt.sum(), (wgt * gy_).sum() / wgt.sum()])
+
+
+def component_median(plant: np.ndarray) -> np.ndarray | None:
+    """Geometric median of the centroids of a plant's separate parts, each counted once, or None.
+
+    For plants whose leaves hang on stems too thin to see (clover trefoils on petioles), the
+    centre lies in the empty space the parts are arranged around, not on any part. Needs ≥ 3
+    parts, none holding more than half of the plant's area.
+    """
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(plant.astype(np.uint8), connectivity=8)
+    if n < 4:
+        return None
+    area = stats[1:, cv2.CC_STAT_AREA].astype(float)
+    keep = area >= 0.04 * area.sum()
+    if keep.sum() < 3 or area.max() > 0.5 * area.sum():
+        return None
+    P = cents[1:][keep]
+    x = P.mean(axis=0)
+    for _ in range(30):  # Weiszfeld
+        d = np.maximum(np.linalg.norm(P - x, axis=1), 1e-6)
+        x = (P / d[:, None]).sum(0) / (1 / d).sum()
+    return x
+
+
+HUB_OPEN = 0.025
+HUB_MIN_LEN = 0.1
+HUB_ELONG = 3.0
 
 
 def tree_median(plant: np.ndarray, vi: np.ndarray | None = None) -> tuple[np.ndarray | None, int, float]:
@@ -410,7 +559,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None) -> tuple[np.nda
     ys, xs = np.nonzero(plant)
     size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
     # nodes: the plant plus a band around it that gaps may be crossed through, at a cost
-    band = cv2.dilate(plant.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)), iterations=max(1, int(0.04 * size)))
+    band = cv2.dilate(plant.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)), iterations=max(1, int(BAND * size)))
     cost = np.where(plant, 1.0, np.where(band > 0, GAP_COST, np.inf))
     G, node = _grid_graph(cost)
     # provisional centre: deepest point of the mask (overlapping leaves are thickest at the centre)
@@ -418,7 +567,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None) -> tuple[np.nda
     c0 = np.unravel_index(int(np.argmax(dt)), dt.shape)
     tips: np.ndarray = np.zeros(0, int)
     centre_node = node[c0]
-    for _ in range(2):
+    for _ in range(TM_ITER):
         g0 = dijkstra(G, directed=False, indices=[centre_node])[0]
         tips = _tips(g0, node, plant, size)
         if len(tips) == 0:
@@ -461,6 +610,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None) -> tuple[np.nda
 
 
 VOTE_WEIGHT = 2.0
+TM_ITER = 2  # tips from the provisional centre, then again from the first estimate
 THIN_BLADE, THIN_ROUND = 0.02, 0.06  # mean half-width / plant size
 
 

@@ -13,45 +13,79 @@ from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig
 from capm_field.detector import Detection, Roi, detect_centre, ground_centre, roi_from_troi
 from sim_bench.perception_bench import make_case
+from sim_bench.plants import WEED_KINDS
 
 CAM = PinholeCamera.from_config(CameraConfig())
 FIX = Path(__file__).parent / "fixtures" / "plants"
 
 
-def _accuracy(n: int) -> tuple[list[float], int]:
-    errs, missed = [], 0
-    for i in range(n):
-        case = make_case(11, 4 * i + (0 if i % 2 else 2), CAM, 0.1, bare=False)  # rosette / grass
-        assert case is not None
+N_PER_KIND = 12  # default batch: 12 NSV views per weed kind + 12 bare-soil views (~20 s)
+
+
+def _run(kind: str, n: int, seed: int = 11) -> tuple[list[float], int, list]:
+    """(ground errors in mm of the detections, misses, reasons) on n bench cases of one kind."""
+    errs, missed, reasons = [], 0, []
+    i = 0
+    while len(reasons) < n:
+        case = make_case(seed, 4 * i + WEED_KINDS.index(kind) if kind != "bare" else i, CAM, 0.1, bare=kind == "bare")
+        i += 1
+        if case is None:
+            continue
+        assert case.kind == kind
         det = detect_centre(case.scene.render(case.T, CAM), roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
+        reasons.append(det.reason)
+        if kind == "bare":
+            continue
         g = ground_centre(CAM, case.T, det)
         if det.reason is not None or g is None:
             missed += 1
             continue
-        errs.append(np.linalg.norm(g - case.scene.weeds[0].centre) * 1000)
-    return errs, missed
+        errs.append(float(np.linalg.norm(g - case.scene.weeds[0].centre) * 1000))
+    return errs, missed, reasons
 
 
-def test_accuracy_on_rendered_rosettes_and_grass() -> None:
-    errs, missed = _accuracy(5)
-    assert missed <= 1
-    assert np.median(errs) < 10.0
+# Per-kind guards at the level measured on the bench (docs/perception.md), not the targets: a
+# change that makes the detector worse fails here. The targets themselves are checked by the
+# slow batch below, marked xfail(strict) while they are not met.
+GUARDS = {  # kind: (max misses of N_PER_KIND, max median error mm, max wrong (> 30 mm))
+    "rosette": (1, 6.0, 2),  # measured on this batch: 0 missed, median 3.6 mm, 1 wrong
+    "seedling": (5, 8.0, 2),  # 4 missed (3 ambiguous, 1 no_plant), 5.4 mm, 0 wrong
+    "grass": (1, 12.0, 4),  # 0, 9.0 mm, 3 wrong
+    "clover": (1, 20.0, 3),  # 0, 12.7 mm, 1 wrong
+}
 
 
-@pytest.mark.slow
-def test_accuracy_larger_batch() -> None:
-    errs, missed = _accuracy(40)
-    assert missed <= 2
-    assert np.median(errs) < 8.0 and np.percentile(errs, 90) < 30.0
+@pytest.mark.parametrize("kind", WEED_KINDS)
+def test_accuracy_per_kind(kind: str) -> None:
+    errs, missed, _ = _run(kind, N_PER_KIND)
+    max_miss, max_med, max_wrong = GUARDS[kind]
+    assert missed <= max_miss, (kind, missed)
+    assert errs and np.median(errs) <= max_med, (kind, np.median(errs))
+    assert sum(e > 30.0 for e in errs) <= max_wrong, (kind, sorted(errs))
 
 
 def test_bare_soil_gives_no_plant() -> None:
-    reasons = []
-    for i in range(6):
-        case = make_case(12, i, CAM, 0.1, bare=True)
-        det = detect_centre(case.scene.render(case.T, CAM), roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
-        reasons.append(det.reason)
-    assert reasons.count("no_plant") >= 5
+    _, _, reasons = _run("bare", N_PER_KIND, seed=12)
+    assert reasons.count("no_plant") >= N_PER_KIND - 2, reasons
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="below target: see docs/perception.md (clover centres, faint seedlings)")
+def test_targets_on_a_large_batch() -> None:
+    """Targets of issue 3 on 60 views per kind + 60 bare: detection ≥ 98 %, wrong ≤ 1 %,
+    median ≤ 5 mm, p90 ≤ 15 mm, no plant on bare soil ≥ 95 %."""
+    n = 60
+    errs, missed = [], 0
+    for kind in WEED_KINDS:
+        e, m, _ = _run(kind, n, seed=21)
+        errs += e
+        missed += m
+    _, _, bare = _run("bare", n, seed=22)
+    total = n * len(WEED_KINDS)
+    assert missed <= 0.02 * total
+    assert sum(e > 30.0 for e in errs) <= 0.01 * total
+    assert np.median(errs) <= 5.0 and np.percentile(errs, 90) <= 15.0
+    assert bare.count("no_plant") >= 0.95 * n
 
 
 @pytest.mark.parametrize(
