@@ -154,6 +154,10 @@ class Arm(_Closable):
     @abc.abstractmethod
     def state(self) -> ArmState: ...
 
+    def reset(self, timeout: float = 1.0) -> None:
+        """Clear a latched arm fault (the arm stays disabled until the next move)."""
+        raise DriverError(f"{type(self).__name__} cannot reset faults")
+
 
 class Igniter(_Closable):
     """Flame igniter board behind the nozzle."""
@@ -180,6 +184,10 @@ class Igniter(_Closable):
 
     @abc.abstractmethod
     def state(self) -> IgniterState: ...
+
+    def reset_fault(self, timeout: float = 1.0) -> None:
+        """Clear a latched igniter fault (ignition failed, flame-out): an explicit, logged act."""
+        raise DriverError(f"{type(self).__name__} cannot reset faults")
 
 
 class Camera(_Closable):

@@ -248,7 +248,7 @@ class Executive:
     def _arm_to(self, sol: ArmSolution) -> None:
         r = self.d.arm.move_joints(sol.q, self.timeouts["arm"])
         self._tf()
-        if not r.ok and self.d.arm.state().fault and hasattr(self.d.arm, "reset"):
+        if not r.ok and self.d.arm.state().fault:
             # A latched arm fault: reset once and retry the move (then give up on the target).
             self._event("warning", f"arm fault {self.d.arm.state().fault}: reset and retry once")
             self.d.arm.reset(self.timeouts["arm"])
@@ -351,10 +351,8 @@ class Executive:
             if reason == "fuel_empty":
                 raise MissionAborted("igniter: fuel empty")
             if attempt == 0 and reason in ("ignition_failed", "flame_out"):
-                reset = getattr(self.d.igniter, "reset_fault", None)
-                if reset is None:
-                    break
-                reset(self.timeouts["arm"])
+                self._event("warning", f"{tid}: resetting the igniter fault ({reason}) for one more trial", target=tid)
+                self.d.igniter.reset_fault(self.timeouts["arm"])
                 continue
             if attempt == 0 and reason.startswith("permit"):
                 body = b.pose  # pushed or moved: re-solve the flame pose from where the body is

@@ -10,7 +10,6 @@ arm's actual camera pose (body pose ⊕ arm FK), so the executive sees what the 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,35 +23,9 @@ from drivers.interfaces import DriverSet
 from .sim_clock import SimClock
 
 
-class BenchClock(SimClock):
-    """One simulated clock for every in-process driver (body uses `advance`, arm and igniter `sleep`)."""
-
-    realtime = False
-
-    def advance(self, dt: float) -> None:
-        self.sleep(dt)
-
-
-class WallClock:
-    """The wire-level bench runs in real time: the robot sides have their own loops."""
-
-    realtime = True
-
-    def now_ns(self) -> int:
-        return time.monotonic_ns()
-
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, dt: float) -> None:
-        time.sleep(max(0.0, dt))
-
-    advance = sleep
-
-
 @dataclass
 class BenchWorld:
-    clock: BenchClock
+    clock: SimClock
     truth: dict[str, tuple[float, float]]
     scene: object
     faults: object | None = None
@@ -102,7 +75,7 @@ def open_bench_drivers(
     from .sim_camera import SimCamera
     from .sim_igniter import SimIgniterDriver
 
-    clock = BenchClock()
+    clock = SimClock()
     truth = sample_mpois(trois, task, seed, mpoi_in_troi)
     weeds = [dict(x=truth[t.id][0], y=truth[t.id][1], kind=None, troi_centre=(t.x, t.y), troi_radius=t.r) for t in trois]
     kinds = ("rosette", "seedling", "grass", "clover")
@@ -143,7 +116,7 @@ def _open_wire(robot: RobotModel, task: TaskConfig, trois: list[TROI], start: SE
     from .sim_camera import SimCamera
     from .zenoh_body_server import free_port, serve_sim_body
 
-    clock = WallClock()
+    clock = SimClock(realtime=True)  # the robot sides run their own real-time loops
     truth = sample_mpois(trois, task, seed, mpoi_in_troi)
     scene = _scene(trois, truth, start, seed)
     world = BenchWorld(clock, truth, scene, transport="wire")

@@ -21,28 +21,10 @@ from capm_field.geometry import SE2, wrap_angle
 from drivers.body_server import MoveStatus
 from drivers.interfaces import Body, BodyState, DriverTimeout, EStopActive, LinkLost, MoveResult
 
+from .sim_clock import SimClock
+
 _SUBSTEP_NS = 5_000_000  # integration step (5 ms): small against the 0.8 m/s² ramps
 _ARRIVE_TOL = 1e-4  # m and rad: the profile ends exactly on the goal, this only absorbs rounding
-
-
-class SimClock:
-    """Simulated time in ns. `realtime=False`: moves only when advanced (fast, deterministic);
-    `realtime=True`: follows `time.monotonic_ns()` (wire-level bench, other processes watching)."""
-
-    def __init__(self, realtime: bool = False, start_ns: int = 0) -> None:
-        self.realtime = realtime
-        self._t = start_ns
-        self._offset = time.monotonic_ns() - start_ns
-
-    def now_ns(self) -> int:
-        return time.monotonic_ns() - self._offset if self.realtime else self._t
-
-    def advance(self, dt: float) -> None:
-        """Let `dt` s pass: a jump in virtual time, a sleep in real time."""
-        if self.realtime:
-            time.sleep(max(0.0, dt))
-        else:
-            self._t += int(round(dt * 1e9))
 
 
 class SimBody:

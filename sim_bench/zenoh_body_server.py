@@ -20,7 +20,8 @@ from capm_field.config import BodyConfig
 from capm_field.geometry import SE2
 from drivers.body_protocol import LinkConfig, is_loopback_endpoint
 from drivers.body_server import BackendState, BodyBackend, BodyServer, ServerConfig
-from sim_bench.sim_body import SimBody, SimClock
+from sim_bench.sim_body import SimBody
+from sim_bench.sim_clock import SimClock
 
 
 class SimBackend(BodyBackend):
