@@ -11,7 +11,8 @@ p(x_b,k1) = ∫ p(X̂_w) · 1[x_b,k1 ∈ R_m(X̂_w)] dX̂_w with the MPOI prior 
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import multivariate_normal, ncx2
+from scipy.special import chndtr  # the non-central χ² CDF as a bare ufunc (= scipy.stats.ncx2.cdf)
+from scipy.stats import multivariate_normal
 
 from .geometry import SE2
 from .reachability import RadialSet, Regions
@@ -23,7 +24,7 @@ def p_closed_form(rho: np.ndarray | float, sigma: float, rm: RadialSet) -> np.nd
     nc = (rho / sigma) ** 2
     p = np.zeros_like(rho)
     for a, b in rm.intervals:
-        p = p + ncx2.cdf((b / sigma) ** 2, 2, nc) - ncx2.cdf((a / sigma) ** 2, 2, nc)
+        p = p + chndtr((b / sigma) ** 2, 2, nc) - chndtr((a / sigma) ** 2, 2, nc)
     return np.clip(p, 0.0, 1.0)
 
 
