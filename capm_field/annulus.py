@@ -42,7 +42,6 @@ def _first_entry(P: np.ndarray, Q: np.ndarray, X: np.ndarray, a: float, b: float
     A = np.einsum("...i,...i->...", d, d)
     B = 2 * np.einsum("...i,...i->...", f, d)
     rp = np.linalg.norm(f, axis=-1)
-    out = P.copy()
     with np.errstate(divide="ignore", invalid="ignore"):
         # Outside the outer circle: smallest root of |f + s·d| = b.
         C = np.einsum("...i,...i->...", f, f) - b * b

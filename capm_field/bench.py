@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import cli_args
 from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
 from .errors import UserError
 from .geometry import SE2
@@ -233,16 +234,8 @@ def main(argv: list[str]) -> int:
         raise UserError(f"--trials must be ≥ 1, got {a.trials}")
     if a.gamma < 0:
         raise UserError(f"--gamma must be ≥ 0, got {a.gamma}")
-    planners = tuple(p.strip() for p in a.planners.split(",") if p.strip())
-    for p in planners:
-        if p not in ALL_PLANNERS:
-            raise UserError(f"unknown planner {p!r} in --planners; choose from {', '.join(ALL_PLANNERS)}")
-    try:
-        lengths = tuple(float(x) for x in a.lengths.split(","))
-    except ValueError as e:
-        raise UserError(f"--lengths: not a list of numbers: {a.lengths!r}") from e
-    if any(L <= 0 for L in lengths):
-        raise UserError(f"--lengths must be positive, got {a.lengths}")
+    planners = cli_args.names(a.planners, ALL_PLANNERS, "--planners")
+    lengths = cli_args.positive_floats(a.lengths, "--lengths")
     try:
         r_range = tuple(float(x) for x in a.radius_range.split(","))
     except ValueError as e:

@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from . import bench as table_bench
+from . import cli_args
 from .config import TaskConfig, build
 from .errors import UserError
 from .field_planner import FieldOptions
@@ -201,16 +202,8 @@ def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
     if a.fields < 1 or a.troi < 1:
         raise UserError("--fields and --troi must be ≥ 1")
-    planners = tuple(p.strip() for p in a.planners.split(",") if p.strip())
-    for p in planners:
-        if p not in PLANNERS:
-            raise UserError(f"unknown planner {p!r} in --planners; choose from {', '.join(PLANNERS)}")
-    try:
-        densities = tuple(float(x) for x in a.densities.split(","))
-    except ValueError as e:
-        raise UserError(f"--densities: not a list of numbers: {a.densities!r}") from e
-    if any(d <= 0 for d in densities):
-        raise UserError("--densities must be positive")
+    planners = cli_args.names(a.planners, PLANNERS, "--planners")
+    densities = cli_args.positive_floats(a.densities, "--densities")
     task = build(TaskConfig, "task", gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma)
     core = table_bench._core_for(task, not a.quiet)
     fopts = FieldOptions(in_troi=a.prior == "in-troi")

@@ -24,7 +24,7 @@ from .can.codec import (
     NODE_HOST_IGN,
 )
 from .can.config import CanIgniterConfig
-from .can.link import CanLink
+from .can.link import CanLink, wait_for
 from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult
 
 
@@ -79,14 +79,7 @@ class CanIgniter(Igniter):
         return self.link.send(self.link.encoder.encode("IGN_CMD", {"Command": cmd}))
 
     def _wait(self, pred: Callable[[], bool], deadline: float, what: str) -> None:
-        with self._cv:
-            while not pred():
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise DriverTimeout(f"timed out waiting for {what}")
-                self._cv.wait(min(left, 0.02))
-                if self.link.lost_reason is not None and self.link.peer_seen.is_set():
-                    raise LinkLost(self.link.lost_reason)
+        wait_for(self._cv, self.link, pred, deadline, what)
 
     def _check(self) -> None:
         if self._closed:

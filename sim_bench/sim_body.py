@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from typing import Callable
 import numpy as np
 

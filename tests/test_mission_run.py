@@ -2,12 +2,9 @@
 ignition interlock against the simulated drivers."""
 
 import json
-import math
 import subprocess
 import sys
-from pathlib import Path
 
-import numpy as np
 import pytest
 from mcap.reader import make_reader
 

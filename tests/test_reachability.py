@@ -1,13 +1,11 @@
 import math
 
 import numpy as np
-import pytest
 
 from capm_field.camera import PinholeCamera
 from capm_field.config import ReachabilityConfig, TaskConfig
 from capm_field.geometry import SE2
-from capm_field.reachability import FlameSolver, RadialSet, build_maps, get_maps, problem_type
-from capm_field.robot_model import RobotModel
+from capm_field.reachability import FlameSolver, RadialSet, get_maps, problem_type
 
 
 def test_default_problem_is_type_ii(maps):

@@ -16,7 +16,7 @@ from typing import Callable
 
 import can
 
-from drivers.interfaces import LinkLost
+from drivers.interfaces import DriverTimeout, LinkLost
 
 from .codec import HEARTBEAT_BASE, NMT_OPERATIONAL, Encoder, Receiver
 from .config import CanBusConfig, HeartbeatConfig
@@ -173,6 +173,19 @@ class CanLink(can.Listener):
             self.notifier.stop(timeout=1.0)  # before bus.shutdown(): see DEPENDENCY_NOTES
         finally:
             self.bus.shutdown()
+
+
+def wait_for(cv: threading.Condition, link: "CanLink", pred: Callable[[], bool], deadline: float, what: str) -> None:
+    """Wait on `cv` until `pred()` holds; DriverTimeout at `deadline` (monotonic s), LinkLost as
+    soon as the link reports the peer lost (only once the peer has been seen at all)."""
+    with cv:
+        while not pred():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise DriverTimeout(f"timed out waiting for {what}")
+            cv.wait(min(left, 0.02))
+            if link.lost_reason is not None and link.peer_seen.is_set():
+                raise LinkLost(link.lost_reason)
 
 
 def heartbeat_id(node: int) -> int:

@@ -1,0 +1,30 @@
+"""Parsing of list-valued command-line options, with errors a user can act on (UserError → exit 2)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from .errors import UserError
+
+
+def names(text: str, allowed: Iterable[str], flag: str) -> tuple[str, ...]:
+    """'a,b,c' → ('a', 'b', 'c'), each one of `allowed`."""
+    allowed = tuple(allowed)
+    out = tuple(p.strip() for p in text.split(",") if p.strip())
+    for p in out:
+        if p not in allowed:
+            raise UserError(f"unknown planner {p!r} in {flag}; choose from {', '.join(allowed)}")
+    if not out:
+        raise UserError(f"{flag}: empty list")
+    return out
+
+
+def positive_floats(text: str, flag: str) -> tuple[float, ...]:
+    """'2.75,3.25' → (2.75, 3.25), all > 0."""
+    try:
+        out = tuple(float(x) for x in text.split(","))
+    except ValueError as e:
+        raise UserError(f"{flag}: not a list of numbers: {text!r}") from e
+    if any(v <= 0 for v in out):
+        raise UserError(f"{flag} must be positive, got {text}")
+    return out
