@@ -139,14 +139,14 @@ def ground_centre(camera: PinholeCamera, T_field_cam: np.ndarray, det: Detection
 
 
 # ---- entry point --------------------------------------------------------------------------------
-def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None) -> Detection:
+def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None = None) -> Detection:
     """Find the biological centre of the main plant in a BGR uint8 image (never raises).
 
     roi: None (whole image), a `Roi`, a 3×3 image conic (pᵀCp ≤ 0 inside) or an OpenCV-style
     ellipse ((cu, cv), (width, height), angle_deg). A malformed roi gives "bad_image".
     """
     try:
-        return _detect(image_bgr, roi)
+        return _detect(image_bgr, roi, debug)
     except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
         return Detection(None, 0.0, "bad_image")
 
@@ -160,7 +160,7 @@ def _as_roi(roi: RoiLike) -> Roi | None:
     return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
 
 
-def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
+def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Detection:
     bad = Detection(None, 0.0, "bad_image")
     if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
         return bad
@@ -238,6 +238,11 @@ def _detect(img: np.ndarray, roi_in: RoiLike) -> Detection:
         scored.append((area * math.exp(-0.5 * (d / 0.6) ** 2), gm, area))
     scored.sort(key=lambda t: -t[0])
     best_score, gmask, area = scored[0]
+    if debug is not None:
+        full = np.zeros((H, W), np.uint8)
+        lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)
+        full[y0:y1, x0:x1] = cv2.resize(lbl, (x1 - x0, y1 - y0), interpolation=cv2.INTER_NEAREST)
+        debug["mask_full"] = full
     if area < min_area * 1.5:
         return Detection(None, 0.0, "no_plant")
     runner = scored[1][0] / best_score if len(scored) > 1 else 0.0

@@ -1,0 +1,164 @@
+"""Failures of `capm-field bench-perception`: re-run the bench cases (same seeds), list per-case
+results and save side-by-side PNGs of the failing ones.
+
+    .venv/bin/python bench/perception_failures.py --scenes 300 --seed 0 --out /tmp/pf [--jobs 2]
+
+Rendered views are cached as lossless PNGs under --cache (default /tmp/pf_cache/<seed>) so the
+detector can be re-evaluated quickly. For each failure (miss, false plant on bare soil, or centre
+> 30 mm off) a PNG is written: left the ROI window with the ROI ellipse (yellow), the true centre
+(green cross) and the estimate (red cross); right the same window's vegetation mask as the
+detector saw it (grey: all components, white: the chosen plant) with the same marks.
+Prints a per-kind summary and writes cases.json (one row per case).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from capm_field.camera import PinholeCamera
+from capm_field.config import CameraConfig, TaskConfig
+from capm_field.detector import detect_centre, ground_centre, roi_from_troi
+from sim_bench.perception_bench import WRONG_MM, make_case
+
+CAM = PinholeCamera.from_config(CameraConfig())
+
+
+def _case_image(seed: int, i: int, bare: bool, cache: Path):
+    delta = TaskConfig().delta
+    case = make_case(seed, i, CAM, delta, bare)
+    if case is None:
+        return None, None
+    f = cache / f"{i:05d}.png"
+    img = cv2.imread(str(f)) if f.exists() else None
+    if img is None:
+        img = case.scene.render(case.T, CAM)
+        cv2.imwrite(str(f), img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    return case, img
+
+
+def evaluate(args) -> dict | None:
+    seed, i, bare, cache, out, save = args
+    cv2.setNumThreads(1)
+    case, img = _case_image(seed, i, bare, cache)
+    if case is None:
+        return None
+    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
+    dbg: dict = {}
+    t0 = time.perf_counter()
+    det = detect_centre(img, roi, debug=dbg)
+    lat = time.perf_counter() - t0
+    row = {"i": i, "kind": case.kind, "reason": det.reason, "conf": det.confidence, "lat_ms": lat * 1000,
+           "pixel": det.pixel, "method": dbg.get("method")}
+    truth_px = None
+    if case.kind != "bare":
+        w = case.scene.weeds[0]
+        truth_px = CAM.ground_to_pixel(case.T, w.centre[None])[0]
+        row["truth_px"] = [float(truth_px[0]), float(truth_px[1])]
+        row["size_mm"] = float(w.plant.extent * 1000)
+        g = ground_centre(CAM, case.T, det)
+        row["err_mm"] = float(np.linalg.norm(g - w.centre) * 1000) if (g is not None and det.reason is None) else None
+        fail = det.reason is not None or row["err_mm"] is None or row["err_mm"] > WRONG_MM
+    else:
+        fail = det.reason != "no_plant"
+    row["fail"] = bool(fail)
+    if save and (fail or save == "all"):
+        _save(out / f"{'FAIL' if fail else 'ok'}_{case.kind}_{i:05d}.png", img, roi, truth_px, det, dbg, row)
+    return row
+
+
+def _save(path: Path, img, roi, truth_px, det, dbg, row) -> None:
+    (cu, cv_), (ew, eh), ang = roi.ellipse()
+    r = 0.6 * max(ew, eh) * 1.15
+    x0, y0 = max(int(cu - r), 0), max(int(cv_ - r), 0)
+    x1, y1 = min(int(cu + r), img.shape[1]), min(int(cv_ + r), img.shape[0])
+    left = img[y0:y1, x0:x1].copy()
+    right = np.zeros_like(left)
+    m = dbg.get("mask_full")
+    if m is not None:
+        right[m[y0:y1, x0:x1] == 1] = (110, 110, 110)
+        right[m[y0:y1, x0:x1] == 2] = (255, 255, 255)
+    k = min(1.0, 700 / max(left.shape[:2]))
+    k = max(k, 400 / max(left.shape[:2]))
+    left = cv2.resize(left, None, fx=k, fy=k, interpolation=cv2.INTER_AREA if k < 1 else cv2.INTER_LINEAR)
+    right = cv2.resize(right, (left.shape[1], left.shape[0]), interpolation=cv2.INTER_NEAREST)
+
+    def P(p):
+        return (int(round((p[0] - x0) * k)), int(round((p[1] - y0) * k)))
+
+    for im in (left, right):
+        cv2.ellipse(im, P((cu, cv_)), (int(ew / 2 * k), int(eh / 2 * k)), ang, 0, 360, (0, 220, 255), 1)
+        if truth_px is not None:
+            cv2.drawMarker(im, P(truth_px), (0, 255, 0), cv2.MARKER_CROSS, 18, 2)
+        if det.pixel is not None:
+            cv2.drawMarker(im, P(det.pixel), (0, 0, 255), cv2.MARKER_TILTED_CROSS, 18, 2)
+        for c in dbg.get("candidates_full", []):
+            cv2.circle(im, P(c), 5, (255, 0, 255), 1)
+    txt = f"{row['kind']} #{row['i']} {det.reason} err={row.get('err_mm')} conf={det.confidence:.2f} m={row.get('method')}"
+    side = np.concatenate([left, right], axis=1)
+    cv2.putText(side, txt, (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3)
+    cv2.putText(side, txt, (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+    cv2.imwrite(str(path), side)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--bare-share", type=float, default=0.15)
+    ap.add_argument("--out", default="/tmp/pf")
+    ap.add_argument("--cache", default=None)
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--save", choices=["fail", "all", "none"], default="fail")
+    ap.add_argument("--only", default=None, help="comma-separated case indices")
+    a = ap.parse_args(argv)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for f in out.glob("*.png"):
+        f.unlink()
+    cache = Path(a.cache or f"/tmp/pf_cache/{a.seed}")
+    cache.mkdir(parents=True, exist_ok=True)
+    n_bare = int(round(a.scenes * a.bare_share))
+    bare_idx = set(np.random.default_rng(a.seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
+    idx = range(a.scenes) if a.only is None else [int(s) for s in a.only.split(",")]
+    save = None if a.save == "none" else a.save
+    jobs = [(a.seed, i, i in bare_idx, cache, out, save) for i in idx]
+    if a.jobs > 1:
+        with ProcessPoolExecutor(a.jobs) as ex:
+            rows = [r for r in ex.map(evaluate, jobs, chunksize=4) if r is not None]
+    else:
+        rows = [r for r in map(evaluate, jobs) if r is not None]
+    (out / "cases.json").write_text(json.dumps(rows, indent=1))
+    weeds = [r for r in rows if r["kind"] != "bare"]
+    bare = [r for r in rows if r["kind"] == "bare"]
+    errs = [r["err_mm"] for r in weeds if r["err_mm"] is not None]
+    det = len(errs)
+    print(f"weed {len(weeds)}: detected {det / max(len(weeds), 1):.1%}, wrong {sum(e > WRONG_MM for e in errs) / max(len(weeds), 1):.1%}, "
+          f"err median {np.median(errs) if errs else float('nan'):.2f} p90 {np.percentile(errs, 90) if errs else float('nan'):.2f} max {max(errs, default=float('nan')):.0f} mm; "
+          f"bare no_plant {sum(r['reason'] == 'no_plant' for r in bare)}/{len(bare)}; "
+          f"latency median {np.median([r['lat_ms'] for r in rows]):.1f} p90 {np.percentile([r['lat_ms'] for r in rows], 90):.1f} ms")
+    for k in sorted({r["kind"] for r in weeds}):
+        rk = [r for r in weeds if r["kind"] == k]
+        ek = [r["err_mm"] for r in rk if r["err_mm"] is not None]
+        reasons = {}
+        for r in rk:
+            if r["reason"]:
+                reasons[r["reason"]] = reasons.get(r["reason"], 0) + 1
+        print(f"  {k:<9} n {len(rk):>3} det {len(ek) / len(rk):6.1%} wrong {sum(e > WRONG_MM for e in ek):>2} "
+              f"median {np.median(ek):5.2f} p90 {np.percentile(ek, 90):6.2f} mm  misses {reasons}")
+    fails = [r["i"] for r in rows if r["fail"]]
+    print("failing:", ",".join(map(str, fails)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
