@@ -50,7 +50,8 @@ class ViewSolver:
 
     def solve(self, body: SE2, troi_xy: tuple[float, float], r: float, variant: int = 0) -> ArmSolution | None:
         """A camera pose seeing the TROI with NSV, or None. `variant` > 0 asks for a different
-        viewing distance (the executive's re-observation from an adjusted pose)."""
+        view (the executive's re-observation from an adjusted pose); if no other view exists the
+        last one found is returned."""
         troi_xy = np.asarray(troi_xy, float)
         T_base = self.robot.T_field_base(body)
         inv = np.linalg.inv(T_base)
@@ -65,16 +66,21 @@ class ViewSolver:
                     seeds.append(s)
         if not seeds:
             return None
-        scale = (1.0, 0.85, 1.15, 0.7, 1.3)[variant % 5]
+        # variant 0: the first NSV pose found; variant k: the k-th one whose camera stands ≥ 3 cm
+        # from every earlier one (a genuinely different view for a re-observation).
+        found: list[ArmSolution] = []
         for q0, depth in seeds:
-            for d in (depth * scale, depth * scale * 0.93, depth * scale * 1.07):
+            for d in (depth, depth * 0.9, depth * 1.1, depth * 0.8, depth * 1.2):
                 q, conv, _ = self.robot.ik_axis_point(RobotModel.CAMERA, tb[:3], d, q0, iters=60, tol=2e-3)
                 if not conv:
                     continue
                 ok, area, T_cam = self.nsv(body, q, troi_xy, r)
-                if ok:
-                    return ArmSolution(q, T_cam, {"depth": d, "area_ratio": area})
-        return None
+                if not ok or any(np.linalg.norm(T_cam[:3, 3] - f.T_field_frame[:3, 3]) < 0.03 for f in found):
+                    continue
+                found.append(ArmSolution(q, T_cam, {"depth": d, "area_ratio": area}))
+                if len(found) > variant:
+                    return found[variant]
+        return found[-1] if found else None
 
 
 def flame_solution(robot: RobotModel, solver: FlameSolver, maps: ReachabilityMaps, body: SE2, mpoi_xy: tuple[float, float]) -> ArmSolution | None:

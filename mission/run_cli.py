@@ -156,13 +156,17 @@ def main(argv: list[str]) -> int:
         finally:
             log.close()
     summary = result.to_json()
+    summary["log_s"] = log.call_time_s  # time spent in RunLog calls (logging cost)
     summary.update({"mission": str(a.mission), "planner": mission.planner, "seed": a.seed if a.seed is not None else getattr(mission.drivers, "seed", None)})
     tmp = out / "summary.json.tmp"
     tmp.write_text(json.dumps(summary, indent=1))
     os.replace(tmp, out / "summary.json")
     flamed = sum(t.flamed for t in result.targets)
     if not quiet:
-        print(f"{flamed}/{len(result.targets)} flamed, success rate {result.success_rate:.2f}, energy {result.total_energy:.2f}, wall {result.wall_s:.1f} s → {out}/run.mcap, {out}/summary.json")
+        print(
+            f"{flamed}/{len(result.targets)} flamed, success rate {result.success_rate:.2f}, energy {result.total_energy:.2f}, "
+            f"wall {result.wall_s:.1f} s (logging {log.call_time_s:.2f} s, {100 * log.call_time_s / max(result.wall_s, 1e-9):.1f} %) → {out}/run.mcap, {out}/summary.json"
+        )
     if result.aborted:
         print(f"capm-field run: mission aborted: {result.aborted}", file=sys.stderr)
         return 1
