@@ -229,13 +229,38 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
         cen_s = np.array([(small.shape[1] - 1) / 2, (small.shape[0] - 1) / 2])
         rad_s = 0.5 * math.hypot(*small.shape[:2])
     groups = _group(lab, stats, comps)
+    # soil spread of the index outside the vegetation mask (robust: median → p90)
+    soil_px = vi[inside & ~mask]
+    sig = max((float(np.percentile(soil_px, 90)) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
+    n_in = float(inside.sum())
+    rim = inside & ~cv2.erode(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) if roi is not None else np.zeros_like(inside)
     scored = []
     for g in groups:
         gm = np.isin(lab, g)
-        area = float(sum(stats[k, cv2.CC_STAT_AREA] for k in g))
-        ys, xs = np.nonzero(gm)
-        d = math.hypot(xs.mean() - cen_s[0], ys.mean() - cen_s[1]) / rad_s
-        scored.append((area * math.exp(-0.5 * (d / 0.6) ** 2), gm, area))
+        f = _candidate(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
+        f["area_frac"] = f["area"] / n_in
+        f["ok"] = bool(f["area"] >= 1.5 * min_area and _plant_like(f))
+        if f["ok"]:
+            # green mass measured at full resolution (the stage-1 max-pooling inflates small
+            # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
+            # candidate cut by the ROI margin (an object reaching in from outside the TROI)
+            ys, xs = np.nonzero(gm)
+            fx0, fy0 = to_full(np.array([xs.min() - 0.5, ys.min() - 0.5]))
+            fx1, fy1 = to_full(np.array([xs.max() + 0.5, ys.max() + 0.5]))
+            sub = img[max(int(fy0), 0):int(math.ceil(fy1)) + 1, max(int(fx0), 0):int(math.ceil(fx1)) + 1]
+            vf = vegetation_index(sub, gains=gains)
+            f["mass_full"] = float(np.count_nonzero(vf > 0.5 * (thr + soil_level))) / (sx * sy)
+            cut = bool(np.any(gm & rim))
+            f["score"] = f["mass_full"] * math.exp(-0.5 * (f["d"] / CENTRAL_SIGMA) ** 2) * (0.33 if cut else 1.0)
+        else:
+            f["score"] = 0.0
+        scored.append((f["score"], gm, f["area"]))
+        if debug is not None:
+            ys, xs = np.nonzero(gm)
+            f["c"] = [float(c) for c in to_full(np.array([xs.mean(), ys.mean()]))]
+            f["bb"] = [float(c) for c in (*to_full(np.array([xs.min() - 0.5, ys.min() - 0.5])), *to_full(np.array([xs.max() + 0.5, ys.max() + 0.5])))]
+            f.update(sig=sig, thr=thr - soil_level, soil=soil_level)
+            debug.setdefault("cands", []).append(f)
     scored.sort(key=lambda t: -t[0])
     best_score, gmask, area = scored[0]
     if debug is not None:
@@ -243,7 +268,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
         lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)
         full[y0:y1, x0:x1] = cv2.resize(lbl, (x1 - x0, y1 - y0), interpolation=cv2.INTER_NEAREST)
         debug["mask_full"] = full
-    if area < min_area * 1.5:
+    if best_score <= 0:
         return Detection(None, 0.0, "no_plant")
     runner = scored[1][0] / best_score if len(scored) > 1 else 0.0
 
@@ -383,6 +408,44 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
     keep[np.unique(lab[strong])] = True
     keep[0] = False
     return keep[lab]
+
+
+CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
+
+
+def _candidate(gm, vi, small, gains, soil, sig, cen, rad) -> dict:
+    """Features of one candidate plant (mask gm on the stage-1 grid).
+
+    g_p90: 90th percentile of the index (absolute), gsig: the same above the soil level in soil σ,
+    gb: median (G − B)/(R + G + B + 30) after the soil white balance (leaves reflect far more
+    green than blue; grey stones turned cyan-green by the white balance and straw do not),
+    sat: median saturation after white balance, mass: Σ (index − soil), d: distance of the
+    centroid from the ROI centre in ROI radii.
+    """
+    v = vi[gm]
+    pc = small[gm].astype(np.float32) * gains
+    mx, mn = pc.max(1), pc.min(1)
+    ys, xs = np.nonzero(gm)
+    g90 = float(np.percentile(v, 90))
+    return dict(
+        area=float(len(v)),
+        g_p90=g90,
+        gsig=(g90 - soil) / sig,
+        gb=float(np.median((pc[:, 1] - pc[:, 0]) / (pc.sum(1) + 30))),
+        sat=float(np.median((mx - mn) / (mx + 1))),
+        mass=float(np.sum(v - soil)),
+        d=math.hypot(xs.mean() - cen[0], ys.mean() - cen[1]) / rad,
+    )
+
+
+def _plant_like(f: dict) -> bool:
+    """Whether a candidate's colour is that of a live plant rather than soil, stone or straw.
+
+    Measured on the bench candidates (bench/perception_candidates.py, docs/perception.md):
+    live leaves have gb ≥ 0.07 and saturation ≥ 0.2 after white balance, and either a clear
+    absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
+    """
+    return f["gb"] >= 0.07 and f["sat"] >= 0.2 and (f["g_p90"] >= 0.04 or (f["gsig"] >= 5 and f["gb"] >= 0.10))
 
 
 def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
