@@ -34,7 +34,7 @@ class MissionError(UserError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Pose(_Strict):
@@ -137,15 +137,21 @@ class Mission(_Strict):
 
 
 # ---------------------------------------------------------------------------------------------
-def _line_map(text: str) -> dict[tuple, int]:
-    """Key path → 1-based line of the node, from the YAML composition tree."""
+def _line_map(text: str, duplicates: list[str] | None = None) -> dict[tuple, int]:
+    """Key path → 1-based line of the node, from the YAML composition tree. Keys given twice in
+    one mapping (YAML would silently keep the last) are appended to `duplicates`."""
     out: dict[tuple, int] = {}
 
     def walk(node, path: tuple) -> None:
         out[path] = node.start_mark.line + 1
         if isinstance(node, yaml.MappingNode):
+            seen: dict = {}
             for k, v in node.value:
                 key = k.value
+                if duplicates is not None and key in seen:
+                    where = ".".join(str(x) for x in path + (key,))
+                    duplicates.append(f"{k.start_mark.line + 1}: {where}: key given twice (first on line {seen[key]})")
+                seen.setdefault(key, k.start_mark.line + 1)
                 out[path + (key,)] = k.start_mark.line + 1
                 walk(v, path + (key,))
         elif isinstance(node, yaml.SequenceNode):
@@ -176,19 +182,20 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
         raise MissionError([f"{path}: cannot read: {e}"]) from e
+    dups: list[str] = []
     try:
         data = yaml.safe_load(text)
-        lines = _line_map(text)
+        lines = _line_map(text, dups)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else str(path)
         raise MissionError([f"{where}: YAML syntax error: {getattr(e, 'problem', None) or e}"]) from e
     if not isinstance(data, dict):
         raise MissionError([f"{path}:1: the mission file must be a mapping of keys (robot, task, field, start, drivers, …)"])
+    problems = [f"{path}:{d}" for d in dups]
     try:
         mission = Mission.model_validate(data)
     except ValidationError as e:
-        problems = []
         for err in e.errors():
             loc = tuple(err["loc"])
             line = _line_for(lines, loc)
@@ -198,6 +205,8 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
             got_s = f" (got {got!r})" if err["type"] not in ("missing",) and not isinstance(got, (dict, list)) else ""
             problems.append(f"{path}:{line or '?'}: {key}: {msg}{got_s}")
         raise MissionError(problems) from e
+    if problems:
+        raise MissionError(problems)
     trois = _trois(mission, path, lines)
     return mission, trois
 

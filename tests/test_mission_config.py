@@ -122,3 +122,13 @@ def test_ordering_nearest_neighbour_two_opt_is_no_longer_than_nn():
         for i in range(len(order) - 1):
             for j in range(i + 1, len(order)):
                 assert length(order[:i] + order[i : j + 1][::-1] + order[j + 1 :]) >= base - 1e-9
+
+
+def test_duplicate_keys_and_non_finite_numbers_are_errors(tmp_path):
+    text = GOOD.replace("{x: 1.0,", "{x: .nan,") + "start: {x: 5, y: 0}\ntask: {gamma: .inf}\n"
+    with pytest.raises(MissionError) as ei:
+        load_mission(_write(tmp_path, text))
+    msg = str(ei.value)
+    assert ":6: start: key given twice (first on line 4)" in msg
+    assert "field.trois.0.x: Input should be a finite number" in msg
+    assert "task.gamma: Input should be a finite number" in msg
