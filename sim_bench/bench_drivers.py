@@ -69,7 +69,6 @@ def open_bench_drivers(
     """
     if transport == "wire":
         return _open_wire(robot, task, trois, start, seed, mpoi_in_troi)
-    from .field_scene import FieldScene
     from .sim_arm import SimArmDriver
     from .sim_body import SimBody, SimBodyDriver
     from .sim_camera import SimCamera
@@ -77,15 +76,7 @@ def open_bench_drivers(
 
     clock = SimClock()
     truth = sample_mpois(trois, task, seed, mpoi_in_troi)
-    weeds = [dict(x=truth[t.id][0], y=truth[t.id][1], kind=None, troi_centre=(t.x, t.y), troi_radius=t.r) for t in trois]
-    kinds = ("rosette", "seedling", "grass", "clover")
-    rng = np.random.default_rng(seed)
-    for w in weeds:
-        w["kind"] = str(rng.choice(kinds))
-    xs = [t.x for t in trois] + [start.x]
-    ys = [t.y for t in trois] + [start.y]
-    area = (min(xs) - 1.5, min(ys) - 1.5, max(xs) + 1.5, max(ys) + 1.5)
-    scene = FieldScene.generate(seed, weeds=weeds, area=area)
+    scene = _scene(trois, truth, start, seed)
     body = SimBodyDriver(SimBody(robot.cfg.body, clock=clock, seed=seed, pose=start))
     arm = SimArmDriver(robot, clock=clock)
     igniter = SimIgniterDriver(clock=clock)
@@ -103,7 +94,12 @@ def _scene(trois: list[TROI], truth: dict, start: SE2, seed: int):
 
     rng = np.random.default_rng(seed)
     kinds = ("rosette", "seedling", "grass", "clover")
-    weeds = [dict(x=truth[t.id][0], y=truth[t.id][1], kind=str(rng.choice(kinds)), troi_centre=(t.x, t.y), troi_radius=t.r) for t in trois]
+    # A prescan TROI of radius r_w comes from a plant seen from above: its longest leaf is drawn in
+    # [0.25, 0.55]·r_w (a 1 cm seedling would not have produced a 25 cm TROI).
+    weeds = [
+        dict(x=truth[t.id][0], y=truth[t.id][1], kind=str(rng.choice(kinds)), size=float(rng.uniform(0.25, 0.55) * t.r), troi_centre=(t.x, t.y), troi_radius=t.r)
+        for t in trois
+    ]
     xs = [t.x for t in trois] + [start.x]
     ys = [t.y for t in trois] + [start.y]
     return FieldScene.generate(seed, weeds=weeds, area=(min(xs) - 1.5, min(ys) - 1.5, max(xs) + 1.5, max(ys) + 1.5))
