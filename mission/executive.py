@@ -230,6 +230,18 @@ class Executive:
             after = fixed
         return after, c
 
+    def _walk_target(self, goal: SE2, forced: bool = False) -> SE2:
+        """A walk on behalf of the current target: a motion failure gets one more try from where
+        the body stands, then the target is skipped; energy and moves are charged to the target."""
+        try:
+            pose, c = self._walk(goal, forced)
+        except _Skip:
+            self._event("warning", f"{self._tid}: body motion failed, re-trying once", target=self._tid)
+            pose, c = self._walk(goal, forced)
+        self._target_energy += c
+        self._moves += 1
+        return pose
+
     def _settled_pose(self, final: object, timeout_s: float = 0.5) -> SE2:
         """The body pose after a move, from a state that postdates the arrival: a state stream
         (zenoh, 100 Hz) may still hold a pre-arrival sample when the move's result comes in, and a
@@ -411,20 +423,9 @@ class Executive:
             self.log.regions(self.now_ns(), tid, troi, list(self.core.ro(troi.r).intervals), list(self.core.rm.intervals), None)
         self._ks(tid, KeyState("x_k0", here))
 
-        def walk(goal: SE2, forced: bool = False) -> SE2:
-            try:
-                pose, c = self._walk(goal, forced)
-            except _Skip:
-                # Motion failure: re-plan once from where we are, then give up on this target.
-                self._event("warning", f"{tid}: body motion failed, re-trying once", target=tid)
-                pose, c = self._walk(goal, forced)
-            self._target_energy += c
-            self._moves += 1
-            return pose
-
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
-        x1 = walk(plan.x_b_k1)
+        x1 = self._walk_target(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
         if self.planner.name == "a":
             mpoi = np.array(troi.xy)  # deterministic: assume X̄_w = X_w, no look
@@ -449,7 +450,7 @@ class Executive:
                 x3 = self.core.facing(P3, mpoi)
                 self._ks(tid, KeyState("x_b,k3", x3), note="re-plan" if attempt else "")
                 self._hook("reposition")
-                body = walk(x3, forced=True)
+                body = self._walk_target(x3, forced=True)
                 if flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi)) is not None:
                     break
                 self._event("warning", f"{tid}: no flame pose after reposition, re-planning once", target=tid)
@@ -462,8 +463,6 @@ class Executive:
         self._stow()
         if tid in self.truth:
             tx = np.asarray(self.truth[tid])
-            nozzle = self.robot.T_field_base(self.d.body.state().pose)  # for the record only
-            del nozzle
             res.epmc_true = bool(self._epmc_true(body, mpoi, tx))
 
     def _epmc_true(self, body: SE2, aimed: np.ndarray, true_xy: np.ndarray) -> bool:
@@ -502,9 +501,7 @@ class Executive:
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
         if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
-            x1, c = self._walk(x1)
-            self._target_energy += c
-            self._moves += 1
+            x1 = self._walk_target(x1)
         else:
             x1 = here
         self._ks(tid, KeyState("x_b,k1", x1))
@@ -528,9 +525,7 @@ class Executive:
             self._set_phase(i, n, tid, "reposition x_b,k3")
             self._ks(tid, k3)
             self._hook("reposition")
-            body, c = self._walk(k3.body, forced=True)
-            self._target_energy += c
-            self._moves += 1
+            body = self._walk_target(k3.body, forced=True)
         self._set_phase(i, n, tid, "flame")
         res.flame_s = self._flame(tid, body, mpoi)
         res.flamed = True

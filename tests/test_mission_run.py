@@ -125,3 +125,26 @@ def test_wire_level_bench_mission(tmp_path):
 
     chk = check_ignition_invariant(tmp_path / "out" / "run.mcap")
     assert chk.ok and chk.flame_on_samples > 0
+
+
+def test_field_planner_mission(tmp_path):
+    """planner: field through the executive: every target handled, the interlock held, and no
+    walk to a midpoint x_kmax (fewer body moves than per-target CAPM on the same field)."""
+    from mission.log_checks import check_ignition_invariant
+
+    moves = {}
+    for planner in ("field", "c"):
+        out = tmp_path / planner
+        m = tmp_path / f"{planner}.yaml"
+        m.write_text(MISSION.format(planner=planner, seed=5, out=out))
+        r = subprocess.run(CLI + ["run", str(m), "--quiet"], capture_output=True, text=True, timeout=240)
+        assert r.returncode == 0, r.stderr
+        s = json.loads((out / "summary.json").read_text())
+        assert all(t["flamed"] or t["reason"] for t in s["targets"])
+        assert check_ignition_invariant(out / "run.mcap").ok
+        moves[planner] = [t["body_moves"] for t in s["targets"]]
+    # Per-target CAPM walks x_k0 → x_b,k1 (→ x_b,k3) → x_kmax: ≥ 2 moves a target. The field
+    # planner's x_kmax is the flame pose: at most the walk to x_b,k1 and a reposition.
+    assert all(m <= 2 for m in moves["field"])
+    assert all(m >= 2 for m, t in zip(moves["c"], moves["c"]) if m)
+    assert sum(moves["field"]) <= sum(moves["c"])
