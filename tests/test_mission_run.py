@@ -146,5 +146,5 @@ def test_field_planner_mission(tmp_path):
     # Per-target CAPM walks x_k0 → x_b,k1 (→ x_b,k3) → x_kmax: ≥ 2 moves a target. The field
     # planner's x_kmax is the flame pose: at most the walk to x_b,k1 and a reposition.
     assert all(m <= 2 for m in moves["field"])
-    assert all(m >= 2 for m, t in zip(moves["c"], moves["c"]) if m)
+    assert all(m >= 2 for m in moves["c"] if m)  # (a skipped target may have fewer)
     assert sum(moves["field"]) <= sum(moves["c"])
