@@ -104,10 +104,40 @@ def _save(path: Path, img, roi, truth_px, det, dbg, row) -> None:
         for c in dbg.get("candidates_full", []):
             cv2.circle(im, P(c), 5, (255, 0, 255), 1)
     txt = f"{row['kind']} #{row['i']} {det.reason} err={row.get('err_mm')} conf={det.confidence:.2f} m={row.get('method')}"
-    side = np.concatenate([left, right], axis=1)
+    side = np.concatenate([left, right, _zoom(img, m, truth_px, det, left.shape[0])], axis=1)
     cv2.putText(side, txt, (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3)
     cv2.putText(side, txt, (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
     cv2.imwrite(str(path), side)
+
+
+def _zoom(img, m, truth_px, det, h):
+    """Full-resolution close-up (h × h) of the chosen plant's box, truth and estimate marked."""
+    pts = []
+    if m is not None and np.any(m == 2):
+        ys, xs = np.nonzero(m == 2)
+        pts += [(xs.min(), ys.min()), (xs.max(), ys.max())]
+    for p in (truth_px, det.pixel):
+        if p is not None:
+            pts.append(tuple(p))
+    if not pts:
+        return np.zeros((h, h, 3), np.uint8)
+    P = np.array(pts, float)
+    c = (P.min(0) + P.max(0)) / 2
+    r = max(40.0, 0.6 * float((P.max(0) - P.min(0)).max()))
+    x0, y0 = int(c[0] - r), int(c[1] - r)
+    n = int(2 * r)
+    pad = cv2.copyMakeBorder(img, n, n, n, n, cv2.BORDER_CONSTANT)
+    z = cv2.resize(pad[y0 + n:y0 + 2 * n, x0 + n:x0 + 2 * n], (h, h), interpolation=cv2.INTER_NEAREST)
+    k = h / n
+
+    def Q(p):
+        return (int(round((p[0] - x0 + 0.5) * k)), int(round((p[1] - y0 + 0.5) * k)))
+
+    if truth_px is not None:
+        cv2.drawMarker(z, Q(truth_px), (0, 255, 0), cv2.MARKER_CROSS, 22, 2)
+    if det.pixel is not None:
+        cv2.drawMarker(z, Q(det.pixel), (0, 0, 255), cv2.MARKER_TILTED_CROSS, 22, 2)
+    return z
 
 
 def main(argv=None) -> int:

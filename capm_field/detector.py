@@ -25,6 +25,7 @@ from typing import Literal, Union
 import cv2
 import numpy as np
 import scipy.sparse as sp
+from scipy import ndimage
 from scipy.sparse.csgraph import dijkstra
 
 from .camera import PinholeCamera
@@ -314,7 +315,10 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
     soil = f[gs <= np.median(gs)]
     ref = np.median(soil, axis=0) + 1.0
     g = SOIL_REF / (ref / ref.sum())
-    return np.clip(g / g[1], 0.6, 1.6).astype(np.float32)
+    return np.clip((g / g[1]) ** WB_STRENGTH, 0.6, 1.6).astype(np.float32)
+
+
+WB_STRENGTH = 1.0  # exponent on the gains (0.5, 0.75 measured: no better)
 
 
 def _roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float, sy: float) -> np.ndarray:
@@ -387,15 +391,21 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
 
     Soil is the bulk of the pixels; its spread is measured on the lower side (plants only add
     pixels on the upper side, but they rarely fill a tenth of a TROI view). Vegetation must stand
-    5 σ above the soil level, with the threshold kept within G* ∈ [0.02, 0.10].
+    5 σ above the soil level, with the threshold kept within G* ∈ [0, 0.10] (the old floor 0.02
+    lost olive grass and yellow-green seedlings; the per-candidate colour rule `_plant_like`
+    now keeps bare soil empty).
     """
     v = v.ravel()
     med, p90 = (float(x) for x in np.percentile(v, [50, 90]))
     sig = max((p90 - med) / 1.28, 0.004)
-    thr = float(np.clip(med + 5.0 * sig, 0.02, 0.10))
+    thr = float(np.clip(med + THR_SIGMAS * sig, THR_FLOOR, 0.10))
     above = v[v > thr]
     contrast = float(np.median(above) - med) if len(above) else 0.0
     return thr, med, contrast
+
+
+THR_FLOOR = 0.0  # G* > 0: green above both red and blue; soil/stone/straw are rejected per candidate
+THR_SIGMAS = 5.0
 
 
 def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> np.ndarray:
@@ -449,8 +459,15 @@ def _plant_like(f: dict) -> bool:
 
 
 def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
-    """Join components separated by a gap smaller than 0.35 × the larger one's diameter."""
+    """Join components separated by a gap smaller than 0.35 × the larger one's diameter.
+
+    Largest first: a group grows by every smaller component whose nearest pixel is within
+    0.35 × the group's diameter (distance transform of the group, minimum per label).
+    """
     comps = sorted(comps, key=lambda k: -stats[k, cv2.CC_STAT_AREA])
+    if not comps:
+        return []
+    idx = np.asarray(comps)
     groups: list[list[int]] = []
     used: set[int] = set()
     for k in comps:
@@ -458,21 +475,29 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
             continue
         g = [k]
         used.add(k)
-        changed = True
-        while changed:
-            changed = False
+        while True:
             gm = np.isin(lab, g)
             ys, xs = np.nonzero(gm)
             diam = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-            dist = cv2.distanceTransform((~gm).astype(np.uint8), cv2.DIST_L2, 3)
-            for m in comps:
-                if m in used or stats[m, cv2.CC_STAT_AREA] > stats[k, cv2.CC_STAT_AREA]:
-                    continue
-                if float(dist[lab == m].min()) < 0.35 * diam:
-                    g.append(m)
-                    used.add(m)
-                    changed = True
+            # only components whose box comes within reach can join: crop to that window
+            r = int(math.ceil(0.35 * diam)) + 1
+            y0, y1 = max(ys.min() - r, 0), min(ys.max() + r + 1, lab.shape[0])
+            x0, x1 = max(xs.min() - r, 0), min(xs.max() + r + 1, lab.shape[1])
+            cand = [m for m in comps if m not in used and stats[m, cv2.CC_STAT_AREA] <= stats[k, cv2.CC_STAT_AREA]
+                    and stats[m, cv2.CC_STAT_LEFT] < x1 and stats[m, cv2.CC_STAT_LEFT] + stats[m, cv2.CC_STAT_WIDTH] > x0
+                    and stats[m, cv2.CC_STAT_TOP] < y1 and stats[m, cv2.CC_STAT_TOP] + stats[m, cv2.CC_STAT_HEIGHT] > y0]
+            if not cand:
+                break
+            sub = lab[y0:y1, x0:x1]
+            dist = cv2.distanceTransform((~gm[y0:y1, x0:x1]).astype(np.uint8), cv2.DIST_L2, 3)
+            dmin = ndimage.minimum(dist, sub, cand)
+            new = [m for m, d in zip(cand, np.atleast_1d(dmin)) if np.isfinite(d) and d < 0.35 * diam]
+            if not new:
+                break
+            g += new
+            used.update(new)
         groups.append(g)
+    del idx
     return groups
 
 
