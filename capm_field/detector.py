@@ -534,8 +534,11 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
     ys_, xs_ = np.nonzero(plant)
     roundness = float(dtp[plant].mean()) / math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
-    hub = line_hub(plant) if roundness >= HUB_MIN_ROUND else None
-    if hub is not None and HUB_MODE:
+    pet = petiole_centre(plant, vi, soil, thr) if roundness >= HUB_MIN_ROUND and PETIOLE else None
+    hub = line_hub(plant) if roundness >= HUB_MIN_ROUND and pet is None else None
+    if pet is not None:
+        uv = pet
+    elif hub is not None and HUB_MODE:
         uv = hub
     elif HUB_MODE >= 2 and roundness >= HUB_MIN_ROUND:
         cm = component_median(plant)
@@ -545,6 +548,122 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
 
 
 HUB_MODE = 2
+PETIOLE = 1
+_PET_DEBUG: dict | None = None
+PET_MINLEN = 0.07  # of the plant size
+PET_K = 1.0  # ridge threshold, × the 99th percentile of the ridge response on the soil
+
+
+def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float) -> np.ndarray | None:
+    """Where ≥ 2 straight stalks (petioles) meet, in mask pixels; or None.
+
+    Clover petioles and rosette leaf stalks are straight lines from the biological centre to
+    their leaf. Thin parts (mask minus its opening by a disc ~2.5 % of the plant size) are
+    split into pieces; each elongated piece (length ≥ 12 % of the size, ≥ 4× longer than wide)
+    gives a line (principal axis of its second moments). Stalks start at the centre, so the
+    lines of two stalks cross there, beyond one end of each piece (a stalk's start may be
+    hidden under young leaves), whereas a leaf junction is on one stalk only. Every crossing
+    of two non-parallel lines near an end of both pieces is a hypothesis; it is supported by
+    the pieces whose line passes within 4 % of the size and whose nearer end is within reach;
+    the best-supported hypothesis (≥ 2 pieces) is refined by least squares over its support.
+    """
+    ys, xs = np.nonzero(plant)
+    if len(xs) < 20:
+        return None
+    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+    r = max(1, int(round(HUB_OPEN * size)))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    pm = plant.astype(np.uint8)
+    opened = cv2.morphologyEx(pm, cv2.MORPH_OPEN, k)
+    broad = cv2.dilate(opened, np.ones((3, 3), np.uint8)) > 0
+    # ridges of the index (thin lines greener than both sides): Hessian at ~1 px
+    f = cv2.GaussianBlur(vi, (0, 0), 1.0)
+    fxx = cv2.Sobel(f, cv2.CV_32F, 2, 0, ksize=3)
+    fyy = cv2.Sobel(f, cv2.CV_32F, 0, 2, ksize=3)
+    fxy = cv2.Sobel(f, cv2.CV_32F, 1, 1, ksize=3)
+    disc = np.sqrt((fxx - fyy) ** 2 + 4 * fxy**2)
+    lam_min = 0.5 * (fxx + fyy - disc)
+    lam_max = 0.5 * (fxx + fyy + disc)
+    ridge = np.where((lam_min < 0) & (np.abs(lam_max) < 0.5 * np.abs(lam_min)), -lam_min, 0.0)
+    far = cv2.dilate(pm, np.ones((7, 7), np.uint8)) == 0
+    noise = float(np.percentile(ridge[far], 99)) if np.count_nonzero(far) > 50 else float(np.percentile(ridge, 90))
+    hull = np.zeros_like(pm)
+    cv2.fillConvexPoly(hull, cv2.convexHull(np.c_[xs, ys].astype(np.int32)), 1)
+    thin = ((ridge > max(noise, 1e-4) * PET_K) & ~broad & (vi > soil + 0.3 * (thr - soil)) & (hull > 0)).astype(np.uint8)
+    thin |= (pm & ~broad).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(thin.astype(np.uint8), connectivity=8)
+    segs = []  # (centre point, unit direction, half-length, weight)
+    for c in range(1, n):
+        if stats[c, cv2.CC_STAT_AREA] < 0.04 * size:
+            continue
+        yy, xx = np.nonzero(lab[stats[c, cv2.CC_STAT_TOP]:stats[c, cv2.CC_STAT_TOP] + stats[c, cv2.CC_STAT_HEIGHT],
+                                stats[c, cv2.CC_STAT_LEFT]:stats[c, cv2.CC_STAT_LEFT] + stats[c, cv2.CC_STAT_WIDTH]] == c)
+        P = np.c_[xx + stats[c, cv2.CC_STAT_LEFT], yy + stats[c, cv2.CC_STAT_TOP]].astype(float)
+        m = P.mean(0)
+        ev, evec = np.linalg.eigh(np.cov((P - m).T) + 1e-9 * np.eye(2))
+        d = evec[:, 1]
+        t = (P - m) @ d
+        L = float(t.max() - t.min()) + 1
+        wdt = math.sqrt(12 * max(ev[0], 0)) + 0.5
+        if L < PET_MINLEN * size or L < 3 * wdt:
+            continue
+        segs.append((m + d * (t.max() + t.min()) / 2, d, L / 2, L))
+    if _PET_DEBUG is not None:
+        _PET_DEBUG.update(thin=thin.copy(), segs=list(segs), ridge=ridge, noise=noise)
+    if len(segs) < 2:
+        return None
+    tol = max(1.5, 0.04 * size)
+    reach = 0.35 * size
+    best, best_sup = None, 0.0
+    for i in range(len(segs)):
+        for j in range(i + 1, len(segs)):
+            (ci, di, hi, _), (cj, dj, hj, _) = segs[i], segs[j]
+            cross = di[0] * dj[1] - di[1] * dj[0]
+            if abs(cross) < math.sin(math.radians(20)):
+                continue
+            # ci + a·di = cj + b·dj
+            dc = cj - ci
+            a = (dc[0] * dj[1] - dc[1] * dj[0]) / cross
+            b = (dc[0] * di[1] - dc[1] * di[0]) / cross
+            if not (hi - tol <= abs(a) <= hi + reach and hj - tol <= abs(b) <= hj + reach):
+                continue
+            X = ci + a * di
+            sup = 0.0
+            for (c, d, h, w) in segs:
+                v = X - c
+                along = float(v @ d)
+                if abs(v[0] * d[1] - v[1] * d[0]) <= tol and h - tol <= abs(along) <= h + reach:
+                    sup += w
+            if sup > best_sup:
+                best, best_sup = X, sup
+    if best is None:
+        return None
+    # least-squares point of the supporting lines
+    A = np.zeros((2, 2))
+    bb = np.zeros(2)
+    nsup = 0
+    for (c, d, h, w) in segs:
+        v = best - c
+        along = float(v @ d)
+        if abs(v[0] * d[1] - v[1] * d[0]) <= tol and h - tol <= abs(along) <= h + reach:
+            Pm = np.eye(2) - np.outer(d, d)
+            A += w * Pm
+            bb += w * Pm @ c
+            nsup += 1
+    if nsup < 2:
+        return None
+    X = np.linalg.solve(A + 1e-9 * np.eye(2), bb)
+    h, w_ = plant.shape
+    if not (0 <= X[0] < w_ and 0 <= X[1] < h):
+        return None
+    # on or next to the plant (the centre of a clover may be bare, but not far from the leaves)
+    # inside the plant's convex hull and on or next to the plant (a clover centre may be bare)
+    if not hull[int(X[1]), int(X[0])]:
+        return None
+    dt = cv2.distanceTransform((1 - pm).astype(np.uint8), cv2.DIST_L2, 3)
+    if dt[int(X[1]), int(X[0])] > 0.12 * size:
+        return None
+    return X
 HUB_MIN_ROUND = 0.022
 
 
