@@ -220,6 +220,21 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
     comps = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area]
     if not comps:
         return Detection(None, 0.0, "no_plant")
+    # soil spread of the index outside the vegetation mask (robust: median → p90)
+    soil_px = vi[inside & ~mask]
+    sig = max((float(np.percentile(soil_px, 90)) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
+    if COMP_FILTER:
+        # components whose own colour is not a plant's (straw, stones) are not grouped with plants
+        keep = []
+        for k in comps:
+            l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
+            sub = lab[t0:t0 + h0, l0:l0 + w0] == k
+            f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, (0.0, 0.0), 1.0)
+            if _plant_like(f):
+                keep.append(k)
+        comps = keep
+        if not comps:
+            return Detection(None, 0.0, "no_plant")
 
     # ---- plants: group components, score by size and centrality
     if roi is not None:
@@ -230,9 +245,6 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
         cen_s = np.array([(small.shape[1] - 1) / 2, (small.shape[0] - 1) / 2])
         rad_s = 0.5 * math.hypot(*small.shape[:2])
     groups = _group(lab, stats, comps)
-    # soil spread of the index outside the vegetation mask (robust: median → p90)
-    soil_px = vi[inside & ~mask]
-    sig = max((float(np.percentile(soil_px, 90)) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
     n_in = float(inside.sum())
     rim = inside & ~cv2.erode(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) if roi is not None else np.zeros_like(inside)
     scored = []
@@ -420,6 +432,7 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
     return keep[lab]
 
 
+COMP_FILTER = 1  # drop components whose own colour is not a plant's before grouping
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
 
 
@@ -455,7 +468,8 @@ def _plant_like(f: dict) -> bool:
     live leaves have gb ≥ 0.07 and saturation ≥ 0.2 after white balance, and either a clear
     absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
     """
-    return f["gb"] >= 0.07 and f["sat"] >= 0.2 and (f["g_p90"] >= 0.04 or (f["gsig"] >= 5 and f["gb"] >= 0.10))
+    margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
+    return f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or (f["gsig"] >= 5 and f["gb"] >= 0.10))
 
 
 def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
