@@ -281,8 +281,9 @@ class BayesPlanner(_ObservingPlanner):
 
     def _coarse(self, S: np.ndarray, E: np.ndarray, X: np.ndarray, sigma: float) -> tuple:
         # The true expectation is ~30× dearer than eq. 11, whose landscape is close: rank the grid
-        # with eq. 11 and refine its four best points with the true expectation.
-        return self._paper_objective(S, E, X, sigma, True), 4
+        # with eq. 11 and refine its two best points with the true expectation (four gave the
+        # same expected cost on 120 cases at twice the time).
+        return self._paper_objective(S, E, X, sigma, True), 2
 
     def _mpoi_quadrature(self, X: np.ndarray, sigma: float, r_w: float) -> np.ndarray:
         """Quadrature points of the MPOI prior (polar: Rayleigh radius, uniform angle)."""
