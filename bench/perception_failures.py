@@ -27,7 +27,23 @@ import numpy as np
 
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
-from capm_field.detector import detect_centre, ground_centre, roi_from_troi
+from capm_field.detector import ground_centre, roi_from_troi
+import capm_field.detector as _det
+
+DETECT = _det.detect_centre
+
+
+def _load_detector(path: str) -> None:
+    """Use detect_centre from another detector file (A/B comparisons with an older version)."""
+    import importlib.util
+
+    global DETECT
+    spec = importlib.util.spec_from_file_location("capm_field._detector_alt", path)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__package__ = "capm_field"
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    DETECT = mod.detect_centre
 from sim_bench.perception_bench import WRONG_MM, make_case
 
 CAM = PinholeCamera.from_config(CameraConfig())
@@ -47,15 +63,20 @@ def _case_image(seed: int, i: int, bare: bool, cache: Path):
 
 
 def evaluate(args) -> dict | None:
-    seed, i, bare, cache, out, save = args
+    seed, i, bare, cache, out, save, alt = args
     cv2.setNumThreads(1)
+    if alt and DETECT is _det.detect_centre:
+        _load_detector(alt)
     case, img = _case_image(seed, i, bare, cache)
     if case is None:
         return None
     roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
     dbg: dict = {}
     t0 = time.perf_counter()
-    det = detect_centre(img, roi, debug=dbg)
+    try:
+        det = DETECT(img, roi, debug=dbg)
+    except TypeError:  # older detectors have no debug argument (and their own Roi class)
+        det = DETECT(img, roi.conic)
     lat = time.perf_counter() - t0
     row = {"i": i, "kind": case.kind, "reason": det.reason, "conf": det.confidence, "lat_ms": lat * 1000,
            "pixel": det.pixel, "method": dbg.get("method")}
@@ -150,6 +171,7 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--save", choices=["fail", "all", "none"], default="fail")
     ap.add_argument("--only", default=None, help="comma-separated case indices")
+    ap.add_argument("--detector", default=None, help="path of another detector.py to evaluate instead (A/B)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -161,7 +183,7 @@ def main(argv=None) -> int:
     bare_idx = set(np.random.default_rng(a.seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
     idx = range(a.scenes) if a.only is None else [int(s) for s in a.only.split(",")]
     save = None if a.save == "none" else a.save
-    jobs = [(a.seed, i, i in bare_idx, cache, out, save) for i in idx]
+    jobs = [(a.seed, i, i in bare_idx, cache, out, save, a.detector) for i in idx]
     if a.jobs > 1:
         with ProcessPoolExecutor(a.jobs) as ex:
             rows = [r for r in ex.map(evaluate, jobs, chunksize=4) if r is not None]

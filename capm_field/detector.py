@@ -230,7 +230,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
             l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
             sub = lab[t0:t0 + h0, l0:l0 + w0] == k
             f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, (0.0, 0.0), 1.0)
-            if _plant_like(f):
+            if _plant_like(f) and (f["elong"] <= STRAW_ELONG or not STRAW_COMP):
                 keep.append(k)
         comps = keep
         if not comps:
@@ -252,7 +252,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
         gm = np.isin(lab, g)
         f = _candidate(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
         f["area_frac"] = f["area"] / n_in
-        f["ok"] = bool(f["area"] >= 1.5 * min_area and _plant_like(f))
+        f["ok"] = bool(f["area"] >= 1.5 * min_area and _plant_like(f) and (f["elong"] <= STRAW_ELONG or not STRAW_GROUP))
         if f["ok"]:
             # green mass measured at full resolution (the stage-1 max-pooling inflates small
             # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
@@ -262,9 +262,22 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
             fx1, fy1 = to_full(np.array([xs.max() + 0.5, ys.max() + 0.5]))
             sub = img[max(int(fy0), 0):int(math.ceil(fy1)) + 1, max(int(fx0), 0):int(math.ceil(fx1)) + 1]
             vf = vegetation_index(sub, gains=gains)
-            f["mass_full"] = float(np.count_nonzero(vf > 0.5 * (thr + soil_level))) / (sx * sy)
+            mf = vf > 0.5 * (thr + soil_level)
+            f["mass_full"] = float(np.count_nonzero(mf)) / (sx * sy)
+            yy, xx = np.nonzero(mf)
+            if len(xx) >= 3:
+                ev = np.linalg.eigvalsh(np.cov(np.c_[xx, yy].T.astype(float)) + 0.25 * np.eye(2))
+                f["elong_full"] = float(math.sqrt(ev[1] / ev[0]))
+            else:
+                f["elong_full"] = 1.0
             cut = bool(np.any(gm & rim))
             f["score"] = f["mass_full"] * math.exp(-0.5 * (f["d"] / CENTRAL_SIGMA) ** 2) * (0.33 if cut else 1.0)
+            # a straight thin piece at full resolution is straw, not a weed (measured: weeds ≤ 4.5)
+            if f["elong_full"] > STRAW_ELONG_FULL:
+                f["score"] = 0.0
+            # the TROI holds the weed's centre (the margin is for overhanging leaves only)
+            if roi is not None and not roi.contains(to_full(np.array([xs.mean(), ys.mean()]))[None], 1.0)[0]:
+                f["score"] = 0.0
         else:
             f["score"] = 0.0
         scored.append((f["score"], gm, f["area"]))
@@ -432,6 +445,10 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
     return keep[lab]
 
 
+STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5
+STRAW_ELONG = 6.5  # same on the stage-1 grid (weeds measured ≤ 5.9 but one merged with straw)
+STRAW_COMP = 0  # per-component straw test before grouping: measured worse (drops split grass blades)
+STRAW_GROUP = 1
 COMP_FILTER = 1  # drop components whose own colour is not a plant's before grouping
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
 
@@ -450,7 +467,13 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad) -> dict:
     mx, mn = pc.max(1), pc.min(1)
     ys, xs = np.nonzero(gm)
     g90 = float(np.percentile(v, 90))
+    if len(xs) >= 3:
+        ev = np.linalg.eigvalsh(np.cov(np.c_[xs, ys].T.astype(float)) + 0.25 * np.eye(2))
+        elong = float(math.sqrt(ev[1] / ev[0]))
+    else:
+        elong = 1.0
     return dict(
+        elong=elong,
         area=float(len(v)),
         g_p90=g90,
         gsig=(g90 - soil) / sig,
