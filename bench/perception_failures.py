@@ -73,10 +73,13 @@ def evaluate(args) -> dict | None:
     roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
     dbg: dict = {}
     t0 = time.perf_counter()
-    try:
+    if DETECT is _det.detect_centre:
         det = DETECT(img, roi, debug=dbg)
-    except TypeError:  # older detectors have no debug argument (and their own Roi class)
-        det = DETECT(img, roi.conic)
+    else:  # another detector file: its own Roi class (pass the conic), maybe no debug argument
+        try:
+            det = DETECT(img, roi.conic, debug=dbg)
+        except TypeError:
+            det = DETECT(img, roi.conic)
     lat = time.perf_counter() - t0
     row = {"i": i, "kind": case.kind, "reason": det.reason, "conf": det.confidence, "lat_ms": lat * 1000,
            "pixel": det.pixel, "method": dbg.get("method")}
