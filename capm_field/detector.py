@@ -563,24 +563,26 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     groups = _group(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
     g = next(gr for gr in groups if big in gr)
     plant = np.isin(lab, g)
-    uv, ntips, sharp = tree_median(plant, vi)
-    if uv is None:
+    if int(plant.sum()) < 3:
         return None, 0, 0.0
-    # plants with broad, rounded parts (clover trefoils, seedlings): trust where thin parts meet,
-    # or the middle of the parts arranged around an empty centre; blades/narrow leaves: tree median
+    # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin
+    # parts meet, or the middle of the parts arranged around an empty centre; blades and narrow
+    # leaves (and round plants where none of these applies): the tree median, computed only then
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
     ys_, xs_ = np.nonzero(plant)
     roundness = float(dtp[plant].mean()) / math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
-    pet = petiole_centre(plant, vi, soil, thr) if roundness >= HUB_MIN_ROUND and PETIOLE else None
-    hub = line_hub(plant) if roundness >= HUB_MIN_ROUND and pet is None else None
-    if pet is not None:
-        uv = pet
-    elif hub is not None and HUB_MODE:
-        uv = hub
-    elif HUB_MODE >= 2 and roundness >= HUB_MIN_ROUND:
-        cm = component_median(plant)
-        if cm is not None:
-            uv = cm
+    uv = None
+    ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
+    if roundness >= HUB_MIN_ROUND:
+        uv = petiole_centre(plant, vi, soil, thr) if PETIOLE else None
+        if uv is None and HUB_MODE:
+            uv = line_hub(plant)
+        if uv is None and HUB_MODE >= 2:
+            uv = component_median(plant)
+    if uv is None:
+        uv, ntips, sharp = tree_median(plant, vi)
+        if uv is None:
+            return None, 0, 0.0
     return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp
 
 
