@@ -574,9 +574,10 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     uv = None
     ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
     if roundness >= HUB_MIN_ROUND:
-        uv = petiole_centre(plant, vi, soil, thr) if PETIOLE else None
+        parts = broad_parts(plant)  # shared by both stalk-based estimates
+        uv = petiole_centre(plant, vi, soil, thr, parts) if PETIOLE else None
         if uv is None and HUB_MODE:
-            uv = line_hub(plant)
+            uv = line_hub(plant, parts)
         if uv is None and HUB_MODE >= 2:
             uv = component_median(plant)
     if uv is None:
@@ -693,7 +694,7 @@ PET_MINLEN = 0.07  # of the plant size
 PET_K = 1.0  # ridge threshold, × the 99th percentile of the ridge response on the soil
 
 
-def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float) -> np.ndarray | None:
+def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, parts: tuple[float, np.ndarray] | None = None) -> np.ndarray | None:
     """Where ≥ 2 straight stalks (petioles) meet, in mask pixels; or None.
 
     Clover petioles and rosette leaf stalks are straight lines from the biological centre to
@@ -706,15 +707,11 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float) -
     the pieces whose line passes within 4 % of the size and whose nearer end is within reach;
     the best-supported hypothesis (≥ 2 pieces) is refined by least squares over its support.
     """
-    ys, xs = np.nonzero(plant)
-    if len(xs) < 20:
+    if int(plant.sum()) < 20:
         return None
-    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-    r = max(1, int(round(HUB_OPEN * size)))
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    size, broad = parts if parts is not None else broad_parts(plant)
+    ys, xs = np.nonzero(plant)
     pm = plant.astype(np.uint8)
-    opened = cv2.morphologyEx(pm, cv2.MORPH_OPEN, k)
-    broad = cv2.dilate(opened, np.ones((3, 3), np.uint8)) > 0
     # ridges of the index (thin lines greener than both sides): Hessian at ~1 px
     f = cv2.GaussianBlur(vi, (0, 0), 1.0)
     fxx = cv2.Sobel(f, cv2.CV_32F, 2, 0, ksize=3)
@@ -806,7 +803,18 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float) -
 HUB_MIN_ROUND = 0.022
 
 
-def line_hub(plant: np.ndarray) -> np.ndarray | None:
+def broad_parts(plant: np.ndarray) -> tuple[float, np.ndarray]:
+    """(plant size in px, mask of its broad parts): the plant opened with a disc of HUB_OPEN·size,
+    grown by one pixel; what is left of the plant are its thin parts (stalks, blades)."""
+    ys, xs = np.nonzero(plant)
+    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+    r = max(1, int(round(HUB_OPEN * size)))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    opened = cv2.morphologyEx(plant.astype(np.uint8), cv2.MORPH_OPEN, k)
+    return size, cv2.dilate(opened, np.ones((3, 3), np.uint8)) > 0
+
+
+def line_hub(plant: np.ndarray, parts: tuple[float, np.ndarray] | None = None) -> np.ndarray | None:
     """Where the plant's thin parts (petioles, stems, blades) converge, in mask pixels; or None.
 
     Thin parts = the mask minus its opening by a disc ~2.5 % of the plant size. Every thin pixel
@@ -814,15 +822,11 @@ def line_hub(plant: np.ndarray) -> np.ndarray | None:
     Needs enough thin pixels from at least three directions voting for the peak, and the hub
     must lie on or next to the plant.
     """
-    ys, xs = np.nonzero(plant)
-    if len(xs) < 10:
+    if int(plant.sum()) < 10:
         return None
-    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-    r = max(1, int(round(HUB_OPEN * size)))
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    size, broad = parts if parts is not None else broad_parts(plant)
     pm = plant.astype(np.uint8)
-    opened = cv2.morphologyEx(pm, cv2.MORPH_OPEN, k)
-    thin = pm & (cv2.dilate(opened, np.ones((3, 3), np.uint8)) == 0)
+    thin = pm & (~broad).astype(np.uint8)
     if int(thin.sum()) < HUB_MIN_LEN * size * 2:
         return None
     h, w = plant.shape
