@@ -548,7 +548,6 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     crop = img[Y0:Y1, X0:X1]
     k = PLANT_PX / max(bx1 - bx0, by1 - by0)
     nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
-    interp = cv2.INTER_AREA if k < 1 else cv2.INTER_LINEAR
     kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
     vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2)
     inside = np.ones(vi.shape, bool)

@@ -20,21 +20,12 @@ import numpy as np
 
 from capm_field.config import ReachabilityConfig
 from capm_field.errors import UserError
-from capm_field.geometry import SE2
 from capm_field.planners import PlanningCore, make_planner
 from capm_field.reachability import get_maps
 from capm_field.robot_model import RobotModel
 
 from .config import load_mission
-from .ordering import order_trois
-
-
-def _x_kmax(ordered, i: int, end: SE2) -> SE2:
-    if i + 1 >= len(ordered):
-        return end
-    a, b = np.array(ordered[i].xy), np.array(ordered[i + 1].xy)
-    m = 0.5 * (a + b)
-    return SE2(float(m[0]), float(m[1]), math.atan2(b[1] - a[1], b[0] - a[0]))
+from .ordering import order_trois, x_kmax
 
 
 def main(argv: list[str]) -> int:
@@ -56,7 +47,7 @@ def main(argv: list[str]) -> int:
     rows = []
     here = mission.start.se2()
     for i, t in enumerate(ordered):
-        end = _x_kmax(ordered, i, mission.end_pose())
+        end = x_kmax(ordered, i, mission.end_pose())
         planner = make_planner(mission.planner, core, seed=a.seed + i)
         plan = planner.plan(here, end, t)
         s = mission.task.sigma(t.r)

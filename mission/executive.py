@@ -13,7 +13,6 @@ anything that is not flaming.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
@@ -23,6 +22,7 @@ import numpy as np
 from capm_field import energy
 from capm_field.arm_poses import ArmSolution, ViewSolver, flame_solution
 from capm_field.camera import PinholeCamera
+from capm_field.detector import detect_centre, roi_from_troi
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI, KeyState, Plan
 from capm_field.planners import BasePlanner, PlanningCore
@@ -31,6 +31,7 @@ from drivers.interfaces import DriverError, DriverSet, DriverTimeout, EStopActiv
 
 from .interlock import IgnitionInterlock
 from .ordering import order_trois
+from .ordering import x_kmax as x_kmax_of
 
 
 class MissionAborted(RuntimeError):
@@ -121,11 +122,7 @@ class Executive:
         self.view = ViewSolver(self.robot, core.maps, self.task)
         self.flame = FlameSolver(self.robot, self.task)
         self.camera = PinholeCamera.from_config(self.robot.cfg.camera)
-        if detector is None:
-            from capm_field.detector import detect_centre
-
-            detector = detect_centre
-        self.detect = detector
+        self.detect = detector or detect_centre
         self.total_energy = 0.0
         self._phase = "idle"
         self._hook_fn = hook
@@ -325,10 +322,6 @@ class Executive:
         return mpoi
 
     def _roi(self, T_cam: np.ndarray, troi: TROI):
-        try:
-            from capm_field.detector import roi_from_troi
-        except ImportError:
-            return None
         # The MPOI lies in the TROI by design; a 1.5× margin keeps plants whose centre sits on the rim.
         return roi_from_troi(self.camera, T_cam, troi.xy, 1.5 * troi.r)
 
@@ -596,7 +589,7 @@ class Executive:
                 ordered = [next(t for t in self.trois if t.id == r.id) for r in results]
             for i, troi in enumerate(ordered if field_order is None else []):
                 self._index = i
-                x_kmax = self._x_kmax(ordered, i)
+                x_kmax = x_kmax_of(ordered, i, self.end)
                 res = results[i]
                 e0 = self.total_energy
                 try:
@@ -651,12 +644,3 @@ class Executive:
             raise EStopActive("E-stop engaged at mission start")
         self._safe()
         self._stow()
-
-    def _x_kmax(self, ordered: list[TROI], i: int) -> SE2:
-        """x_kmax: midpoint towards the next TROI (paper), the user's end pose after the last."""
-        if i + 1 >= len(ordered):
-            return self.end
-        a, b = np.array(ordered[i].xy), np.array(ordered[i + 1].xy)
-        m = 0.5 * (a + b)
-        yaw = math.atan2(b[1] - a[1], b[0] - a[0])
-        return SE2(float(m[0]), float(m[1]), yaw)

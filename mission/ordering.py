@@ -6,8 +6,11 @@ start → T_1 → … → T_n → end measured between TROI centres.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from capm_field.geometry import SE2
 from capm_field.keystates import TROI
 
 
@@ -40,3 +43,13 @@ def order_trois(trois: list[TROI], start_xy: np.ndarray, end_xy: np.ndarray, max
         if not improved:
             break
     return [trois[i] for i in order]
+
+
+def x_kmax(ordered: list[TROI], i: int, end: SE2) -> SE2:
+    """x_kmax of the i-th TROI (paper §IV-F): the midpoint towards the next TROI, heading there;
+    the user's end pose after the last."""
+    if i + 1 >= len(ordered):
+        return end
+    a, b = np.array(ordered[i].xy), np.array(ordered[i + 1].xy)
+    m = 0.5 * (a + b)
+    return SE2(float(m[0]), float(m[1]), math.atan2(b[1] - a[1], b[0] - a[0]))
