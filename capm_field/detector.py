@@ -147,7 +147,15 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
     ellipse ((cu, cv), (width, height), angle_deg). A malformed roi gives "bad_image".
     """
     try:
-        return _detect(image_bgr, roi, debug)
+        det = _detect(image_bgr, roi, debug)
+        if det.reason == "no_plant" and VIVID_LOOK:
+            # second look on the green–red axis of CIELAB: yellow-green leaves (young seedlings,
+            # chlorotic plants, warm light) reflect nearly as much red as green, so G − max(R, B)
+            # leaves them at the soil's level; only vivid candidates count (soil tints come up too)
+            det2 = _detect(image_bgr, roi, debug, vivid=True)
+            if det2.reason != "no_plant":
+                return det2
+        return det
     except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
         return Detection(None, 0.0, "bad_image")
 
@@ -161,7 +169,10 @@ def _as_roi(roi: RoiLike) -> Roi | None:
     return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
 
 
-def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Detection:
+VIVID_LOOK = True  # second look with the CIELAB index when the first finds no plant
+
+
+def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False) -> Detection:
     bad = Detection(None, 0.0, "bad_image")
     if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
         return bad
@@ -212,7 +223,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
 
     # ---- vegetation mask
     gains = soil_gains(small, inside)
-    vi = pooled_index(crop, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1)
+    vi = pooled_index(crop, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid)
     thr, soil_level, contrast = _threshold(vi[inside])
     mask = _hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
@@ -230,7 +241,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
             l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
             sub = lab[t0:t0 + h0, l0:l0 + w0] == k
             f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, (0.0, 0.0), 1.0)
-            if _plant_like(f) and (f["elong"] <= STRAW_ELONG or not STRAW_COMP):
+            if _plant_like(f, vivid) and (f["elong"] <= STRAW_ELONG or not STRAW_COMP):
                 keep.append(k)
         comps = keep
         if not comps:
@@ -252,7 +263,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
         gm = np.isin(lab, g)
         f = _candidate(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
         f["area_frac"] = f["area"] / n_in
-        f["ok"] = bool(f["area"] >= 1.5 * min_area and _plant_like(f) and (f["elong"] <= STRAW_ELONG or not STRAW_GROUP))
+        f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and _plant_like(f, vivid) and (f["elong"] <= STRAW_ELONG or not STRAW_GROUP))
         if f["ok"]:
             # green mass measured at full resolution (the stage-1 max-pooling inflates small
             # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
@@ -261,7 +272,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
             fx0, fy0 = to_full(np.array([xs.min() - 0.5, ys.min() - 0.5]))
             fx1, fy1 = to_full(np.array([xs.max() + 0.5, ys.max() + 0.5]))
             sub = img[max(int(fy0), 0):int(math.ceil(fy1)) + 1, max(int(fx0), 0):int(math.ceil(fx1)) + 1]
-            vf = vegetation_index(sub, gains=gains)
+            vf = vegetation_index(sub, gains=gains, lab=vivid)
             mf = vf > 0.5 * (thr + soil_level)
             f["mass_full"] = float(np.count_nonzero(mf)) / (sx * sy)
             yy, xx = np.nonzero(mf)
@@ -302,7 +313,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None) -> Dete
     ys, xs = np.nonzero(gmask)
     bx0, bx1 = to_full(np.array([xs.min() - 0.5, 0]))[0], to_full(np.array([xs.max() + 0.5, 0]))[0]
     by0, by1 = to_full(np.array([0, ys.min() - 0.5]))[1], to_full(np.array([0, ys.max() + 0.5]))[1]
-    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi)
+    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab=vivid)
     if centre is None:
         return Detection(None, 0.0, "no_plant")
 
@@ -376,10 +387,18 @@ def greenness(bgr: np.ndarray) -> np.ndarray:
     return cv2.divide(num, den)
 
 
-def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: np.ndarray | None = None) -> np.ndarray:
-    """Greenness after soil-referenced white balance (see `soil_gains`), float32 (h, w)."""
+def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: np.ndarray | None = None,
+                     lab: bool = False) -> np.ndarray:
+    """Greenness after soil-referenced white balance (see `soil_gains`), float32 (h, w).
+
+    lab=False: G* (`greenness`). lab=True: −a*/100 of CIELAB, the green–red opponent axis, which
+    also ranks yellow-green leaves (G ≈ R) above soil and straw; used by the second look only.
+    """
     if gains is None:
         gains = soil_gains(bgr, inside)
+    if lab:
+        wb = np.clip(bgr.astype(np.float32) * (gains / 255.0), 0.0, 1.0)
+        return cv2.cvtColor(wb, cv2.COLOR_BGR2Lab)[..., 1] * np.float32(-0.01)
     return greenness(bgr.astype(np.float32) * gains)
 
 
@@ -387,7 +406,7 @@ MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is compute
 MID_PX_STAGE2 = 120_000  # same for the plant crop (stage 2)
 
 
-def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int) -> np.ndarray:
+def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int, lab: bool = False) -> np.ndarray:
     """Vegetation index of `bgr` on a coarser grid `size` (w, h), thin parts kept (max-pooling).
 
     Averaging colours before judging greenness dilutes 1–2 px stems, petioles and grass blades
@@ -402,7 +421,7 @@ def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_
         mid = cv2.resize(bgr, (max(1, round(w / g)), max(1, round(h / g))), interpolation=cv2.INTER_AREA)
     else:
         mid = bgr
-    vi = cv2.GaussianBlur(vegetation_index(mid, gains=gains), (0, 0), 0.7)
+    vi = cv2.GaussianBlur(vegetation_index(mid, gains=gains, lab=lab), (0, 0), 0.7)
     f = mid.shape[1] / nw
     if f <= 1.25:
         return cv2.resize(vi, (nw, nh), interpolation=cv2.INTER_LINEAR) if (nw, nh) != (mid.shape[1], mid.shape[0]) else vi
@@ -484,7 +503,11 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad) -> dict:
     )
 
 
-def _plant_like(f: dict) -> bool:
+VIVID_SAT, VIVID_GB = 0.42, 0.15  # second look: bare-soil candidates measured sat ≤ 0.38, gb ≤ 0.14
+VIVID_AREA = 4.0  # × the minimum component area (a 20-px green speck on bare soil came up)
+
+
+def _plant_like(f: dict, vivid: bool = False) -> bool:
     """Whether a candidate's colour is that of a live plant rather than soil, stone or straw.
 
     Measured on the bench candidates (bench/perception_candidates.py, docs/perception.md):
@@ -492,6 +515,8 @@ def _plant_like(f: dict) -> bool:
     absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
     """
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
+    if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB):
+        return False
     return f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or (f["gsig"] >= 5 and f["gb"] >= 0.10))
 
 
@@ -538,8 +563,10 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
     return groups
 
 
-def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None):
-    """Tree-median centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness)."""
+def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
+                    lab: bool = False):
+    """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
+    gets the name of the estimator that gave it under "method"."""
     H, W = img.shape[:2]
     bx0, by0, bx1, by1 = box
     m = 0.12 * max(bx1 - bx0, by1 - by0) + 2
@@ -549,7 +576,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     k = PLANT_PX / max(bx1 - bx0, by1 - by0)
     nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
     kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
-    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2)
+    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab)
     inside = np.ones(vi.shape, bool)
     if roi is not None:
         inside = _roi_mask(roi, vi.shape, X0, Y0, kx, ky)
@@ -570,16 +597,19 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
     ys_, xs_ = np.nonzero(plant)
     roundness = float(dtp[plant].mean()) / math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
-    uv = None
+    uv, method = None, None
     ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
     if roundness >= HUB_MIN_ROUND:
         parts = broad_parts(plant)  # shared by both stalk-based estimates
-        uv = petiole_centre(plant, vi, soil, thr, parts) if PETIOLE else None
-        if uv is None and HUB_MODE:
-            uv = line_hub(plant, parts)
-        if uv is None and HUB_MODE >= 2:
-            uv = component_median(plant)
+        for name, fn in (("petiole_centre", lambda: petiole_centre(plant, vi, soil, thr, parts) if PETIOLE else None),
+                         ("line_hub", lambda: line_hub(plant, parts) if HUB_MODE else None),
+                         ("component_median", lambda: component_median(plant) if HUB_MODE >= 2 else None)):
+            uv = fn()
+            if uv is not None:
+                method = name
+                break
     if uv is None:
+        method = "tree_median"
         tm: dict = {}
         uv, ntips, sharp = tree_median(plant, vi, tm)
         if uv is None:
@@ -588,6 +618,8 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
             la = leaf_axes_centre(plant, tm["tips"])
             if la is not None:
                 uv = la if LEAF_AXES == 1 else 0.5 * (la + uv)
+    if debug is not None:
+        debug["method"] = method
     return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp
 
 
