@@ -95,6 +95,24 @@ def test_straw_is_not_a_plant() -> None:
     assert det.reason == "no_plant", det
 
 
+def test_yellow_green_seedling_on_olive_soil() -> None:
+    """A vivid yellow-green seedling (G ≈ R, as in the bench demo's W12) on grey-olive soil:
+    G − max(R, B) leaves it at the soil's level, the CIELAB second look finds it."""
+    import capm_field.detector as det_mod
+
+    rng = np.random.default_rng(9)
+    img = _soil(rng, colour=(95, 110, 115))
+    c = np.array([320.0, 250.0])
+    for a, L in ((-1.2, 45), (1.9, 40), (0.4, 30)):
+        d = np.array([np.cos(a), np.sin(a)])
+        m = c + d * L / 2
+        cv2.ellipse(img, (int(m[0]), int(m[1])), (L // 2, L // 5), np.degrees(a), 0, 360, (35, 118, 116), -1, cv2.LINE_AA)
+    roi = Roi.from_ellipse((320, 240), (200, 200))
+    assert det_mod._detect(img, roi).reason == "no_plant"  # the first look alone misses it
+    det = detect_centre(img, roi)
+    assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 8, det
+
+
 def test_plant_outside_the_troi_is_not_reported() -> None:
     """A plant whose centre lies in the ROI margin (outside the TROI itself) is not the weed."""
     rng = np.random.default_rng(8)
