@@ -207,7 +207,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     # ---- exposure sanity on the window
     gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
     mean, std = cv2.meanStdDev(gray)
-    sat = float(np.count_nonzero(small.min(axis=2) >= 250)) / gray.size  # clipped to white
+    b_, g_, r_ = cv2.split(small)
+    sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= 250)) / gray.size  # clipped to white
     if mean[0, 0] < 12 or sat > 0.6 or std[0, 0] < 1.5 or mean[0, 0] > 245:
         return bad
 
@@ -347,8 +348,10 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
     cast of the light or the camera's white balance is removed before judging greenness. Gains
     are bounded so a frame filled with leaves cannot be "corrected" into soil.
     """
-    f = bgr.reshape(-1, 3) if inside is None else bgr[inside]
-    f = f[:: max(1, len(f) // 20000)].astype(np.float32)  # a sample is enough for medians
+    # a sample of ~20 000 pixels is enough for medians: stride the grid before masking
+    k = max(1, int(math.sqrt(bgr.shape[0] * bgr.shape[1] / 20000)))
+    sub = bgr[::k, ::k]
+    f = (sub.reshape(-1, 3) if inside is None else sub[inside[::k, ::k]]).astype(np.float32)
     gs = greenness(f[None])[0]
     soil = f[gs <= np.median(gs)]
     ref = np.median(soil, axis=0) + 1.0
@@ -399,9 +402,16 @@ def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: n
     if gains is None:
         gains = soil_gains(bgr, inside)
     if lab:
-        wb = np.clip(bgr.astype(np.float32) * (gains / 255.0), 0.0, 1.0)
+        wb = np.clip(_scaled(bgr, gains / 255.0), 0.0, 1.0)
         return cv2.cvtColor(wb, cv2.COLOR_BGR2Lab)[..., 1] * np.float32(-0.01)
-    return greenness(bgr.astype(np.float32) * gains)
+    return greenness(_scaled(bgr, gains))
+
+
+def _scaled(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """float32 bgr × per-channel gains (OpenCV: ~4× faster than numpy's cast and multiply)."""
+    if bgr.ndim != 3 or bgr.shape[2] != 3:
+        return bgr.astype(np.float32) * gains
+    return cv2.multiply(bgr, (float(gains[0]), float(gains[1]), float(gains[2]), 0.0), dtype=cv2.CV_32F)
 
 
 MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is computed on (stage 1)
@@ -986,11 +996,13 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     c0 = np.unravel_index(int(np.argmax(dt)), dt.shape)
     tips: np.ndarray = np.zeros(0, int)
     centre_node = node[c0]
+    prev: set = set()
     for _ in range(TM_ITER):
         g0 = dijkstra(G, directed=False, indices=[centre_node])[0]
         tips = _tips(g0, node, plant, size)
-        if len(tips) == 0:
-            break
+        if len(tips) == 0 or set(tips.tolist()) == prev:
+            break  # same tips from the new centre: F, and so the minimum, would not change
+        prev = set(tips.tolist())
         D = dijkstra(G, directed=False, indices=tips, limit=np.inf)
         F = D.sum(axis=0) + 0.1 * D.max(axis=0)
         F[~np.isfinite(F)] = np.inf
