@@ -316,7 +316,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     ys, xs = np.nonzero(gmask)
     bx0, bx1 = to_full(np.array([xs.min() - 0.5, 0]))[0], to_full(np.array([xs.max() + 0.5, 0]))[0]
     by0, by1 = to_full(np.array([0, ys.min() - 0.5]))[1], to_full(np.array([0, ys.max() + 0.5]))[1]
-    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab=vivid)
+    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab=vivid,
+                                          stage1=(gmask, x0, y0, sx, sy))
     if centre is None:
         return Detection(None, 0.0, "no_plant")
 
@@ -578,7 +579,7 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
 
 
 def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
-                    lab: bool = False):
+                    lab: bool = False, stage1: tuple | None = None):
     """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
     gets the name of the estimator that gave it under "method"."""
     H, W = img.shape[:2]
@@ -598,10 +599,23 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if n <= 1:
         return None, 0, 0.0
-    # keep the components of this plant: the largest and those within reach of it
-    big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    groups = _group(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
-    g = next(gr for gr in groups if big in gr)
+    g = None
+    if stage1 is not None:
+        # the plant is what stage 1 chose (colour-checked, grouped): the components that overlap
+        # its mask; straw or stones next to the plant must not become its stalks
+        gm1, x1_0, y1_0, s1x, s1y = stage1
+        gm1 = cv2.dilate(gm1.astype(np.uint8), np.ones((3, 3), np.uint8))
+        jj = ((X0 + (np.arange(nw) + 0.5) * kx - 0.5) - x1_0 + 0.5) / s1x - 0.5
+        ii = ((Y0 + (np.arange(nh) + 0.5) * ky - 0.5) - y1_0 + 0.5) / s1y - 0.5
+        jj = np.clip(np.rint(jj).astype(int), 0, gm1.shape[1] - 1)
+        ii = np.clip(np.rint(ii).astype(int), 0, gm1.shape[0] - 1)
+        keep = gm1[np.ix_(ii, jj)] > 0
+        g = [c for c in np.unique(lab[keep & (lab > 0)]) if stats[c, cv2.CC_STAT_AREA] >= 3] or None
+    if g is None:
+        # keep the components of this plant: the largest and those within reach of it
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        groups = _group(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
+        g = next(gr for gr in groups if big in gr)
     plant = np.isin(lab, g)
     if int(plant.sum()) < 3:
         return None, 0, 0.0
@@ -619,6 +633,8 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
                          ("line_hub", lambda: line_hub(plant, parts) if HUB_MODE else None),
                          ("component_median", lambda: component_median(plant) if HUB_MODE >= 2 else None)):
             uv = fn()
+            if uv is not None and not _within_broad_hull(uv, parts):
+                uv = None  # stalk-like lines outside the leaves (straw next to the plant)
             if uv is not None:
                 method = name
                 break
@@ -855,6 +871,21 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
         return None
     return X
 HUB_MIN_ROUND = 0.022
+
+
+HULL_TOL = 0.05  # × plant size: how far outside the broad parts' hull a stalk meeting may lie
+
+
+def _within_broad_hull(uv: np.ndarray, parts: tuple[float, np.ndarray]) -> bool:
+    """Whether a centre estimate lies within (or HULL_TOL·size of) the convex hull of the plant's
+    broad parts: leaves sit round their centre, so a meeting point of thin lines outside them is
+    not where the stalks start (it is straw or a stone edge grouped with the plant)."""
+    size, broad = parts
+    ys, xs = np.nonzero(broad)
+    if len(xs) < 3:
+        return True
+    hull = cv2.convexHull(np.c_[xs, ys].astype(np.float32))
+    return cv2.pointPolygonTest(hull, (float(uv[0]), float(uv[1])), True) >= -HULL_TOL * size
 
 
 def broad_parts(plant: np.ndarray) -> tuple[float, np.ndarray]:
