@@ -316,7 +316,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     ys, xs = np.nonzero(gmask)
     bx0, bx1 = to_full(np.array([xs.min() - 0.5, 0]))[0], to_full(np.array([xs.max() + 0.5, 0]))[0]
     by0, by1 = to_full(np.array([0, ys.min() - 0.5]))[1], to_full(np.array([0, ys.max() + 0.5]))[1]
-    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab=vivid,
+    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
                                           stage1=(gmask, x0, y0, sx, sy))
     if centre is None:
         return Detection(None, 0.0, "no_plant")
@@ -579,7 +579,7 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
 
 
 def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
-                    lab: bool = False, stage1: tuple | None = None):
+                    lab_index: bool = False, stage1: tuple | None = None):
     """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
     gets the name of the estimator that gave it under "method"."""
     H, W = img.shape[:2]
@@ -591,7 +591,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     k = PLANT_PX / max(bx1 - bx0, by1 - by0)
     nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
     kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
-    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab)
+    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab_index)
     inside = np.ones(vi.shape, bool)
     if roi is not None:
         inside = _roi_mask(roi, vi.shape, X0, Y0, kx, ky)
