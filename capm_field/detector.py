@@ -206,10 +206,12 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
 
     # ---- exposure sanity on the window
     gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
-    mean, std = cv2.meanStdDev(gray)
+    mean = float(cv2.mean(gray)[0])
+    # flat = no variation in any channel (a green leaf can have the soil's grey level exactly)
+    std = float(cv2.meanStdDev(small)[1].max())
     b_, g_, r_ = cv2.split(small)
     sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= 250)) / gray.size  # clipped to white
-    if mean[0, 0] < 12 or sat > 0.6 or std[0, 0] < 1.5 or mean[0, 0] > 245:
+    if mean < 12 or sat > 0.6 or std < 1.5 or mean > 245:
         return bad
 
     # window pixel (i, j) of `small` ↔ full image (x0 + (j + 0.5)·sx − 0.5, y0 + (i + 0.5)·sy − 0.5)
