@@ -266,6 +266,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     scored = []
     for g in groups:
         gm = np.isin(lab, g)
+        if debug is None and int(stats[g, cv2.CC_STAT_AREA].sum()) < (VIVID_AREA if vivid else 1.5) * min_area:
+            continue  # too small to be chosen: no features needed
         f = _candidate(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
         f["area_frac"] = f["area"] / n_in
         f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and _plant_like(f, vivid) and (f["elong"] <= STRAW_ELONG or not STRAW_GROUP))
@@ -303,6 +305,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             f["bb"] = [float(c) for c in (*to_full(np.array([xs.min() - 0.5, ys.min() - 0.5])), *to_full(np.array([xs.max() + 0.5, ys.max() + 0.5])))]
             f.update(sig=sig, thr=thr - soil_level, soil=soil_level)
             debug.setdefault("cands", []).append(f)
+    if not scored:
+        return Detection(None, 0.0, "no_plant")
     scored.sort(key=lambda t: -t[0])
     best_score, gmask, area = scored[0]
     if debug is not None:
@@ -421,6 +425,15 @@ MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is compute
 MID_PX_STAGE2 = 120_000  # same for the plant crop (stage 2)
 
 
+def _downscale(bgr: np.ndarray, max_px: int) -> np.ndarray:
+    """`bgr` itself if it has at most `max_px` pixels, else area-resampled down to that many."""
+    h, w = bgr.shape[:2]
+    g = max(1.0, math.sqrt(h * w / max_px))
+    if g <= 1.0:
+        return bgr
+    return cv2.resize(bgr, (max(1, round(w / g)), max(1, round(h / g))), interpolation=cv2.INTER_AREA)
+
+
 def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int, lab: bool = False) -> np.ndarray:
     """Vegetation index of `bgr` on a coarser grid `size` (w, h), thin parts kept (max-pooling).
 
@@ -429,13 +442,8 @@ def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_
     has at most `mid_px` pixels, else downscaled to that), lightly smoothed against sensor noise,
     then max-pooled (grey dilation over one output cell, then area resampling) to `size`.
     """
-    h, w = bgr.shape[:2]
     nw, nh = size
-    g = max(1.0, math.sqrt(h * w / mid_px))
-    if g > 1.0:
-        mid = cv2.resize(bgr, (max(1, round(w / g)), max(1, round(h / g))), interpolation=cv2.INTER_AREA)
-    else:
-        mid = bgr
+    mid = _downscale(bgr, mid_px)
     vi = cv2.GaussianBlur(vegetation_index(mid, gains=gains, lab=lab), (0, 0), 0.7)
     f = mid.shape[1] / nw
     if f <= 1.25:
@@ -652,7 +660,12 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     if uv is None:
         method = "tree_median"
         tm: dict = {}
-        uv, ntips, sharp = tree_median(plant, vi, tm, votes)
+        # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
+        # window leaves the two edges of a broad leaf voting along two parallel lines that
+        # miss its axis (and the centre) by the half-width
+        half = float(dtp[plant].mean()) / size
+        scale = float(np.clip(AXIS_K * half, 0.015, AXIS_MAX))
+        uv, ntips, sharp = tree_median(plant, vi, tm, axis_votes(vi, plant, size, scale) if scale > 0.015 else votes)
         if uv is None:
             return None, 0, 0.0
         if LEAF_AXES and "tips" in tm:
@@ -1077,11 +1090,12 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
 
 
 VOTE_WEIGHT = 2.0
+AXIS_K, AXIS_MAX = 1.0, 0.05  # tree-median vote scale = AXIS_K × mean half-width (≤ AXIS_MAX), × size
 TM_ITER = 2  # tips from the provisional centre, then again from the first estimate
 THIN_BLADE, THIN_ROUND = 0.02, 0.06  # mean half-width / plant size
 
 
-def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:
+def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float, scale: float = 0.015) -> np.ndarray:
     """Leaf-axis convergence map in [0, 1]: every leaf/blade edge votes along its own direction.
 
     Blade edges, midribs and elongated leaf margins run towards where the leaves emerge, so
@@ -1091,7 +1105,7 @@ def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:
     f = cv2.GaussianBlur(vi, (0, 0), 1.0)
     gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
-    sg = max(1.0, 0.015 * size)
+    sg = max(1.0, scale * size)
     jxx = cv2.GaussianBlur(gx * gx, (0, 0), sg)
     jyy = cv2.GaussianBlur(gy * gy, (0, 0), sg)
     jxy = cv2.GaussianBlur(gx * gy, (0, 0), sg)
@@ -1107,11 +1121,14 @@ def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:
         ys, xs = ys[sel], xs[sel]
     # edge direction = perpendicular to the dominant gradient
     phi = 0.5 * np.arctan2(2 * jxy[ys, xs], jxx[ys, xs] - jyy[ys, xs]) + np.pi / 2
-    dx, dy = np.cos(phi), np.sin(phi)
+    dx, dy = np.cos(phi).astype(np.float32), np.sin(phi).astype(np.float32)
     L = int(0.6 * size)
     t = np.arange(-L, L + 1, dtype=np.float32)
-    px = np.rint(xs[:, None] + dx[:, None] * t[None, :]).astype(np.int64)
-    py = np.rint(ys[:, None] + dy[:, None] * t[None, :]).astype(np.int64)
+    # nearest pixel along each line in float32/int32 (half the time of float64 rint); the
+    # offset keeps the values positive so the cast rounds like floor(x + ½)
+    off = np.float32(L + 1.5)
+    px = (xs.astype(np.float32)[:, None] + dx[:, None] * t[None, :] + off).astype(np.int32) - (L + 1)
+    py = (ys.astype(np.float32)[:, None] + dy[:, None] * t[None, :] + off).astype(np.int32) - (L + 1)
     ok = (px >= 0) & (px < w) & (py >= 0) & (py < h)
     ww = np.broadcast_to(wgt[ys, xs][:, None], px.shape)
     acc = np.bincount((py * w + px)[ok], weights=ww[ok], minlength=h * w).reshape(h, w).astype(np.float32)
