@@ -665,7 +665,8 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         # miss its axis (and the centre) by the half-width
         half = float(dtp[plant].mean()) / size
         scale = float(np.clip(AXIS_K * half, 0.015, AXIS_MAX))
-        uv, ntips, sharp = tree_median(plant, vi, tm, axis_votes(vi, plant, size, scale) if scale > 0.015 else votes)
+        fine = scale <= 0.015 or half >= THIN_ROUND  # votes unused for round parts (weight 0)
+        uv, ntips, sharp = tree_median(plant, vi, tm, votes if fine else axis_votes(vi, plant, size, scale))
         if uv is None:
             return None, 0, 0.0
         if LEAF_AXES and "tips" in tm:
