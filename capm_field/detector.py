@@ -411,6 +411,11 @@ def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: n
     if lab:
         wb = np.clip(_scaled(bgr, gains / 255.0), 0.0, 1.0)
         return cv2.cvtColor(wb, cv2.COLOR_BGR2Lab)[..., 1] * np.float32(-0.01)
+    if bgr.dtype == np.uint8 and bgr.ndim == 3 and bgr.shape[2] == 3:
+        # split the 8-bit planes first and scale each: ~4× faster than scaling the 3-channel
+        # image to float and splitting that (same values)
+        b, g, r = (cv2.multiply(p, float(k), dtype=cv2.CV_32F) for p, k in zip(cv2.split(bgr), gains))
+        return cv2.divide(cv2.subtract(g, cv2.max(r, b)), cv2.add(cv2.add(b, g), cv2.add(r, 30.0)))
     return greenness(_scaled(bgr, gains))
 
 
