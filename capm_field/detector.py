@@ -148,12 +148,13 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
     """
     try:
         det = _detect(image_bgr, roi, debug)
-        if det.reason == "no_plant" and VIVID_LOOK:
+        if det.reason in ("no_plant", "ambiguous") and VIVID_LOOK:
             # second look on the green–red axis of CIELAB: yellow-green leaves (young seedlings,
             # chlorotic plants, warm light) reflect nearly as much red as green, so G − max(R, B)
             # leaves them at the soil's level; only vivid candidates count (soil tints come up too)
+            # (also after an "ambiguous" first look: a pale plant split in two by G* is one in −a*)
             det2 = _detect(image_bgr, roi, debug, vivid=True)
-            if det2.reason != "no_plant":
+            if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
                 return det2
         return det
     except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
