@@ -198,9 +198,12 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     else:
         x0, y0, x1, y1 = 0, 0, W, H
     crop = img[y0:y1, x0:x1]
+    # the index image (≤ MID_PX_STAGE1 px, see pooled_index) is made once; the ≤ WORK_PX grid is
+    # resampled from it rather than from the full window (one large area resampling, not two)
+    mid = _downscale(crop, MID_PX_STAGE1)
     s = max(1.0, max(crop.shape[:2]) / WORK_PX)
     if s > 1.0:
-        small = cv2.resize(crop, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))), interpolation=cv2.INTER_AREA)
+        small = cv2.resize(mid, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))), interpolation=cv2.INTER_AREA)
     else:
         small = crop
     sx, sy = crop.shape[1] / small.shape[1], crop.shape[0] / small.shape[0]
@@ -229,7 +232,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     gains = soil_gains(small, inside)
     if vivid:
         gains = gains ** VIVID_WB
-    vi = pooled_index(crop, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid)
+    vi = pooled_index(mid, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid)
     # soil statistics from every other row and column: the same percentiles in a quarter of the time
     thr, soil_level, contrast = _threshold(vi[::2, ::2][inside[::2, ::2]] if inside.sum() >= 4096 else vi[inside])
     mask = _hysteresis(vi, thr, soil_level, inside)
