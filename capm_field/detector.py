@@ -536,6 +536,7 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad) -> dict:
     )
 
 
+STRONG_SIGMA = 12.0
 VIVID_SAT, VIVID_GB = 0.42, 0.15  # second look: bare-soil candidates measured sat ≤ 0.38, gb ≤ 0.14
 VIVID_WB = 0.5  # exponent on the soil white balance in the second look: half (a full pull towards a reddish
 # soil turns yellow-green leaves on grey-olive soil orange; none measured 0.4 % fewer detections)
@@ -552,7 +553,11 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB):
         return False
-    return f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or (f["gsig"] >= 5 and f["gb"] >= 0.10))
+    # the weaker the absolute greenness, the stronger the margin over the soil must be: ≥ 5 σ
+    # with gb ≥ 0.10, or ≥ 12 σ with the base gb (dark olive grass on dark soil: G* p90 0.015
+    # at 15 σ, gb 0.096 — demo seed 8)
+    strong = f["gsig"] >= 5 and f["gb"] >= 0.10 or f["gsig"] >= STRONG_SIGMA
+    return f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or strong)
 
 
 def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
