@@ -14,8 +14,11 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
-## run: the main job on the bench simulator (the demo mission; the planner bench is `bench`)
+## run: the main job on the bench simulator (the demo mission; the planner bench is `bench`).
+## A previous demo run is kept as runs/bench-demo.prev (capm-field itself never overwrites a log).
 run: $(STAMP)
+	@if [ -e runs/bench-demo ]; then rm -rf runs/bench-demo.prev && mv runs/bench-demo runs/bench-demo.prev \
+	  && echo "previous demo run moved to runs/bench-demo.prev"; fi
 	$(BIN)/capm-field run mission/examples/bench_demo.yaml --out runs/bench-demo
 
 ## bench: the paper's Table I
