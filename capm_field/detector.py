@@ -148,7 +148,7 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
     """
     try:
         det = _detect(image_bgr, roi, debug)
-        if det.reason in ("no_plant", "ambiguous") and VIVID_LOOK:
+        if det.reason in ("no_plant", "ambiguous"):
             # second look on the green–red axis of CIELAB: yellow-green leaves (young seedlings,
             # chlorotic plants, warm light) reflect nearly as much red as green, so G − max(R, B)
             # leaves them at the soil's level; only vivid candidates count (soil tints come up too)
@@ -168,9 +168,6 @@ def _as_roi(roi: RoiLike) -> Roi | None:
         return Roi.from_conic(roi)
     (cu, cv_), (w, h), ang = roi
     return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
-
-
-VIVID_LOOK = True  # second look with the CIELAB index when the first finds no plant
 
 
 def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False) -> Detection:
@@ -244,18 +241,17 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     # soil spread of the index outside the vegetation mask (robust: median → p90)
     soil_px = vi[::2, ::2][(inside & ~mask)[::2, ::2]] if inside.sum() >= 4096 else vi[inside & ~mask]
     sig = max((float(np.percentile(soil_px, 90)) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
-    if COMP_FILTER:
-        # components whose own colour is not a plant's (straw, stones) are not grouped with plants
-        keep = []
-        for k in comps:
-            l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
-            sub = lab[t0:t0 + h0, l0:l0 + w0] == k
-            f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, (0.0, 0.0), 1.0)
-            if _plant_like(f, vivid) and (f["elong"] <= STRAW_ELONG or not STRAW_COMP):
-                keep.append(k)
-        comps = keep
-        if not comps:
-            return Detection(None, 0.0, "no_plant")
+    # components whose own colour is not a plant's (straw, stones) are not grouped with plants
+    keep = []
+    for k in comps:
+        l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
+        sub = lab[t0:t0 + h0, l0:l0 + w0] == k
+        f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, (0.0, 0.0), 1.0)
+        if _plant_like(f, vivid):
+            keep.append(k)
+    comps = keep
+    if not comps:
+        return Detection(None, 0.0, "no_plant")
 
     # ---- plants: group components, score by size and centrality
     if roi is not None:
@@ -275,7 +271,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             continue  # too small to be chosen: no features needed
         f = _candidate(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
         f["area_frac"] = f["area"] / n_in
-        f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and _plant_like(f, vivid) and (f["elong"] <= STRAW_ELONG or not STRAW_GROUP))
+        f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and _plant_like(f, vivid) and f["elong"] <= STRAW_ELONG)
         if f["ok"]:
             # green mass measured at full resolution (the stage-1 max-pooling inflates small
             # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
@@ -499,9 +495,6 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
 
 STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5
 STRAW_ELONG = 6.5  # same on the stage-1 grid (weeds measured ≤ 5.9 but one merged with straw)
-STRAW_COMP = 0  # per-component straw test before grouping: measured worse (drops split grass blades)
-STRAW_GROUP = 1
-COMP_FILTER = 1  # drop components whose own colour is not a plant's before grouping
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
 
 
@@ -654,9 +647,9 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
     if roundness >= plant_centre.HUB_MIN_ROUND:
         parts = plant_centre.broad_parts(plant)  # shared by both stalk-based estimates
-        for name, fn in (("petiole_centre", lambda: plant_centre.petiole_centre(plant, vi, soil, thr, parts) if plant_centre.PETIOLE else None),
-                         ("line_hub", lambda: plant_centre.line_hub(plant, parts) if plant_centre.HUB_MODE else None),
-                         ("component_median", lambda: plant_centre.component_median(plant) if plant_centre.HUB_MODE >= 2 else None)):
+        for name, fn in (("petiole_centre", lambda: plant_centre.petiole_centre(plant, vi, soil, thr, parts)),
+                         ("line_hub", lambda: plant_centre.line_hub(plant, parts)),
+                         ("component_median", lambda: plant_centre.component_median(plant))):
             uv = fn()
             if uv is not None and not plant_centre.within_broad_hull(uv, parts):
                 uv = None  # stalk-like lines outside the leaves (straw next to the plant)
@@ -674,20 +667,15 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
             uv = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
     if uv is None:
         method = "tree_median"
-        tm: dict = {}
         # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
         # window leaves the two edges of a broad leaf voting along two parallel lines that
         # miss its axis (and the centre) by the half-width
         half = float(dtp[plant].mean()) / size
         scale = float(np.clip(plant_centre.AXIS_K * half, 0.015, plant_centre.AXIS_MAX))
         fine = scale <= 0.015 or half >= plant_centre.THIN_ROUND  # votes unused for round parts (weight 0)
-        uv, ntips, sharp = plant_centre.tree_median(plant, vi, tm, votes if fine else plant_centre.axis_votes(vi, plant, size, scale))
+        uv, ntips, sharp = plant_centre.tree_median(plant, vi, None, votes if fine else plant_centre.axis_votes(vi, plant, size, scale))
         if uv is None:
             return None, 0, 0.0
-        if plant_centre.LEAF_AXES and "tips" in tm:
-            la = plant_centre.leaf_axes_centre(plant, tm["tips"])
-            if la is not None:
-                uv = la if plant_centre.LEAF_AXES == 1 else 0.5 * (la + uv)
     if debug is not None:
         debug["method"] = method
     return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp

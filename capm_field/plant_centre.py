@@ -24,104 +24,8 @@ GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges l
 BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
 
 
-HUB_MODE = 2
-# Leaf-axis crossing after the tree median: 0 off, 1 replace, 2 average. Measured on the bench
-# (seed 0, docs/perception.md): 1 → median 7.6 mm (5.9 off), 2 → wrong 9.0 % (9.4) but median
-# 7.1 mm; with a stricter residual (0.015) no better than off. Off until leaves are separated
-# better (distal parts of overlapping rosette leaves and grass blades give biased axes).
-LEAF_AXES = 0
-LA_R = 0.25  # distal part radius, × plant size
-LA_RES = 0.04  # accepted median residual, × plant size
 
 
-def leaf_axes_centre(plant: np.ndarray, tips: np.ndarray) -> np.ndarray | None:
-    """Least-squares crossing of the leaves' axes, in mask pixels; or None.
-
-    Each tip's distal part (plant pixels within LA_R × size of the tip, connected to it) gives
-    a line through its centroid along its principal axis (second moments), weighted by how
-    elongated the part is. Leaves, blades and stalks point at where they emerge, so the lines
-    cross at the biological centre whatever the leaves' lengths. Robust (Cauchy-weighted)
-    least squares; needs ≥ 3 lines spread over ≥ 60°, a small residual, and the point on or
-    next to the plant inside its convex hull.
-    """
-    ys, xs = np.nonzero(plant)
-    if len(tips) < 3 or len(xs) < 20:
-        return None
-    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-    R = LA_R * size
-    pm = plant.astype(np.uint8)
-    P_all = np.c_[xs, ys].astype(float)
-    lines = []
-    for t in tips:
-        near = np.hypot(P_all[:, 0] - t[0], P_all[:, 1] - t[1]) <= R
-        if near.sum() < 5:
-            continue
-        sub = np.zeros_like(pm)
-        sub[ys[near], xs[near]] = 1
-        n, lab = cv2.connectedComponents(sub, connectivity=8)
-        k = lab[int(t[1]), int(t[0])]
-        if k == 0:
-            continue
-        yy, xx = np.nonzero(lab == k)
-        if len(xx) < 5:
-            continue
-        Q = np.c_[xx, yy].astype(float)
-        m = Q.mean(0)
-        ev, evec = np.linalg.eigh(np.cov((Q - m).T) + 1e-6 * np.eye(2))
-        d = evec[:, 1]
-        w = 1.0 - ev[0] / ev[1]
-        if w < 0.3:
-            continue
-        lines.append((m, d, w, t))
-    if len(lines) < 3:
-        return None
-    angs = np.array([math.atan2(d[1], d[0]) % math.pi for _, d, _, _ in lines])
-    spread = np.ptp(np.sort(angs))
-    if min(spread, math.pi - spread) < math.radians(30) and spread < math.radians(60):
-        return None
-
-    def solve(wts):
-        A = np.zeros((2, 2))
-        b = np.zeros(2)
-        for (m, d, _, _), wt in zip(lines, wts):
-            Pm = np.eye(2) - np.outer(d, d)
-            A += wt * Pm
-            b += wt * Pm @ m
-        if np.linalg.cond(A) > 1e6:
-            return None
-        return np.linalg.solve(A, b)
-
-    base = np.array([w for _, _, w, _ in lines])
-    X = solve(base)
-    if X is None:
-        return None
-    c = 0.05 * size
-    for _ in range(5):
-        r = np.array([abs((X - m)[0] * d[1] - (X - m)[1] * d[0]) for m, d, _, _ in lines])
-        X = solve(base / (1 + (r / c) ** 2))
-        if X is None:
-            return None
-    r = np.array([abs((X - m)[0] * d[1] - (X - m)[1] * d[0]) for m, d, _, _ in lines])
-    good = r < 2 * LA_RES * size
-    if good.sum() < 3 or float(np.median(r)) > LA_RES * size:
-        return None
-    # the centre lies behind each good line's distal part, away from its tip
-    for (m, d, _, t), g in zip(lines, good):
-        if g and float((X - m) @ (m - t)) < 0:
-            return None
-    h, w_ = plant.shape
-    if not (0 <= X[0] < w_ and 0 <= X[1] < h):
-        return None
-    hull = np.zeros_like(pm)
-    cv2.fillConvexPoly(hull, cv2.convexHull(np.c_[xs, ys].astype(np.int32)), 1)
-    if not hull[int(X[1]), int(X[0])]:
-        return None
-    dt = cv2.distanceTransform((1 - pm).astype(np.uint8), cv2.DIST_L2, 3)
-    if dt[int(X[1]), int(X[0])] > 0.03 * size:
-        return None
-    return X
-PETIOLE = 1
-_PET_DEBUG: dict | None = None
 PET_MINLEN = 0.07  # of the plant size
 PET_K = 1.0  # ridge threshold, × the 99th percentile of the ridge response on the soil
 
@@ -176,8 +80,6 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
         if L < PET_MINLEN * size or L < 3 * wdt:
             continue
         segs.append((m + d * (t.max() + t.min()) / 2, d, L / 2, L))
-    if _PET_DEBUG is not None:
-        _PET_DEBUG.update(thin=thin.copy(), segs=list(segs), ridge=ridge, noise=noise)
     if len(segs) < 2:
         return None
     tol = max(1.5, 0.04 * size)
@@ -339,7 +241,6 @@ def component_median(plant: np.ndarray) -> np.ndarray | None:
 
 HUB_OPEN = 0.025
 HUB_MIN_LEN = 0.1
-HUB_ELONG = 3.0
 
 
 SCATTER_PEAKS = 4  # vote peaks (≥ 0.7 of the highest, 0.12·size apart) that mark a plant without one apex
