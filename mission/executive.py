@@ -449,14 +449,17 @@ class Executive:
                 self._event("warning", f"{tid}: no flame pose after reposition, re-planning once", target=tid)
             else:
                 raise _Skip("no_flame_pose_after_replan")
+        self._flame_stow(i, n, tid, body, mpoi, res)
+
+    def _flame_stow(self, i: int, n: int, tid: str, body: SE2, mpoi: np.ndarray, res: TargetResult) -> None:
+        """Flame from `body` at the detected MPOI, stow, and score EPMC against the truth (bench)."""
         self._set_phase(i, n, tid, "flame")
         res.flame_s = self._flame(tid, body, mpoi)
         res.flamed = True
         self._hook("stow")
         self._stow()
         if tid in self.truth:
-            tx = np.asarray(self.truth[tid])
-            res.epmc_true = bool(self._epmc_true(body, mpoi, tx))
+            res.epmc_true = bool(self._epmc_true(body, mpoi, np.asarray(self.truth[tid])))
 
     def _epmc_true(self, body: SE2, aimed: np.ndarray, true_xy: np.ndarray) -> bool:
         """Bench check: the flame pose used (aimed at the detected MPOI) against the true MPOI.
@@ -519,13 +522,7 @@ class Executive:
             self._ks(tid, k3)
             self._hook("reposition")
             body = self._walk_target(k3.body, forced=True)
-        self._set_phase(i, n, tid, "flame")
-        res.flame_s = self._flame(tid, body, mpoi)
-        res.flamed = True
-        self._hook("stow")
-        self._stow()
-        if tid in self.truth:
-            res.epmc_true = bool(self._epmc_true(body, mpoi, np.asarray(self.truth[tid])))
+        self._flame_stow(i, n, tid, body, mpoi, res)
 
     def _run_field(self, results: dict[str, TargetResult]) -> list[str]:
         fp = self.planner
