@@ -637,15 +637,23 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     plant = np.isin(lab, g)
     if int(plant.sum()) < 3:
         return None, 0, 0.0
+    dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
+    ys_, xs_ = np.nonzero(plant)
+    size = math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
+    roundness = float(dtp[plant].mean()) / size
+    uv, method = None, None
+    ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
+    # a fan (blades leaning one way from one base) first: its leaf axes converge at one end,
+    # where no middle-of-the-parts estimate lands
+    votes = plant_centre.axis_votes(vi, plant, size)
+    n_peaks = plant_centre.vote_peaks(votes, size)
+    uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
+    if uv is not None:
+        method = "fan_apex"
     # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin
     # parts meet, or the middle of the parts arranged around an empty centre; blades and narrow
     # leaves (and round plants where none of these applies): the tree median, computed only then
-    dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
-    ys_, xs_ = np.nonzero(plant)
-    roundness = float(dtp[plant].mean()) / math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
-    uv, method = None, None
-    ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
-    if roundness >= plant_centre.HUB_MIN_ROUND:
+    if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
         parts = plant_centre.broad_parts(plant)  # shared by both stalk-based estimates
         for name, fn in (("petiole_centre", lambda: plant_centre.petiole_centre(plant, vi, soil, thr, parts)),
                          ("line_hub", lambda: plant_centre.line_hub(plant, parts)),
@@ -657,9 +665,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
                 method = name
                 break
     if uv is None:
-        size = math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
-        votes = plant_centre.axis_votes(vi, plant, size)
-        if plant_centre.SCATTER_PEAKS and plant_centre.vote_peaks(votes, size) >= plant_centre.SCATTER_PEAKS:
+        if plant_centre.SCATTER_PEAKS and n_peaks >= plant_centre.SCATTER_PEAKS:
             # leaf axes converge at many separate points (the hubs of compound leaves, e.g.
             # clover trefoils, or the bases of scattered seedling leaves): no single apex to
             # trust, the centre is the middle the parts are arranged around

@@ -142,6 +142,36 @@ def test_clean_synthetic_rosettes_of_another_renderer() -> None:
     assert sum(e < 0.15 for e in errs) >= 18, errs
 
 
+def test_fan_shaped_grass_tufts_centre_at_the_base() -> None:
+    """Dense grass tufts whose blades all lean one way (a fan spreading 25–70°), drawn as tapered
+    polygons by OpenCV and blurred: the centre is the common base, not the middle of the blades
+    (where Σ distance to the tips lies). Measured: median 0.04 L, 9 of 12 within 0.15 L; before
+    `fan_apex` median 0.26 L, 7 of 12."""
+    import math
+
+    rng = np.random.default_rng(21)
+    errs = []
+    for k in range(12):
+        img = _soil(rng, (720, 1280), colour=(int(rng.integers(60, 140)), int(rng.integers(90, 150)), int(rng.integers(120, 180))))
+        base = np.array([640 + rng.uniform(-80, 80), 360 + rng.uniform(-60, 60)])
+        L = rng.uniform(120, 220)
+        lean, spread = rng.uniform(0, 2 * np.pi), math.radians(rng.uniform(25, 70))
+        col = (int(rng.integers(30, 60)), int(rng.integers(120, 170)), int(rng.integers(40, 90)))
+        for _ in range(int(rng.integers(8, 16))):
+            a = lean + spread * (rng.random() - 0.5)
+            ln = L * rng.uniform(0.6, 1.0)
+            d = np.array([math.cos(a), math.sin(a)])
+            nrm = np.array([-d[1], d[0]])
+            w = rng.uniform(3.0, 6.0)  # half-width at the base, px
+            tip = base + ln * d
+            poly = np.array([base + w * nrm, base + 0.2 * ln * d + w * nrm, tip, base + 0.2 * ln * d - w * nrm, base - w * nrm])
+            cv2.fillPoly(img, [np.round(poly * 16).astype(np.int32)], col, cv2.LINE_AA, shift=4)
+        det = detect_centre(cv2.GaussianBlur(img, (0, 0), 2.0))
+        errs.append(math.inf if det.pixel is None else math.hypot(det.pixel[0] - base[0], det.pixel[1] - base[1]) / L)
+    assert np.median(errs) < 0.1, errs
+    assert sum(e < 0.15 for e in errs) >= 9, errs
+
+
 def test_plant_outside_the_troi_is_not_reported() -> None:
     """A plant whose centre lies in the ROI margin (outside the TROI itself) is not the weed."""
     rng = np.random.default_rng(8)
