@@ -147,18 +147,32 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
     ellipse ((cu, cv), (width, height), angle_deg). A malformed roi gives "bad_image".
     """
     try:
-        det = _detect(image_bgr, roi, debug)
+        first: dict = {}
+        det = _detect(image_bgr, roi, debug, first=first)
         if det.reason in ("no_plant", "ambiguous"):
             # second look on the green–red axis of CIELAB: yellow-green leaves (young seedlings,
             # chlorotic plants, warm light) reflect nearly as much red as green, so G − max(R, B)
             # leaves them at the soil's level; only vivid candidates count (soil tints come up too)
             # (also after an "ambiguous" first look: a pale plant split in two by G* is one in −a*)
             det2 = _detect(image_bgr, roi, debug, vivid=True)
+            if det.reason == "ambiguous" and det2.reason is None and not _in_boxes(det2.pixel, first.get("contenders", [])):
+                return det  # the second look chose something else than the plants in question
             if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
                 return det2
         return det
     except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
         return Detection(None, 0.0, "bad_image")
+
+
+def _in_boxes(uv, boxes: list, grow: float = 0.2) -> bool:
+    """Whether pixel `uv` lies in one of the boxes (x0, y0, x1, y1), each grown by `grow` of its size."""
+    if uv is None:
+        return False
+    for x0, y0, x1, y1 in boxes:
+        mx, my = grow * (x1 - x0), grow * (y1 - y0)
+        if x0 - mx <= uv[0] <= x1 + mx and y0 - my <= uv[1] <= y1 + my:
+            return True
+    return False
 
 
 def _as_roi(roi: RoiLike) -> Roi | None:
@@ -170,7 +184,10 @@ def _as_roi(roi: RoiLike) -> Roi | None:
     return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
 
 
-def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False) -> Detection:
+def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False,
+            first: dict | None = None) -> Detection:
+    """One look (G* or, with `vivid`, CIELAB −a*). `first` receives the full-image boxes of the
+    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about)."""
     bad = Detection(None, 0.0, "bad_image")
     if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
         return bad
@@ -299,7 +316,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
                 f["score"] = 0.0
         else:
             f["score"] = 0.0
-        scored.append((f["score"], gm, f["area"]))
+        scored.append((f["score"], gm, f["area"], _mask_box(gm, to_full) if f["score"] > 0 and first is not None else None))
         if debug is not None:
             ys, xs = np.nonzero(gm)
             f["c"] = [float(c) for c in to_full(np.array([xs.mean(), ys.mean()]))]
@@ -309,7 +326,9 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if not scored:
         return Detection(None, 0.0, "no_plant")
     scored.sort(key=lambda t: -t[0])
-    best_score, gmask, area = scored[0]
+    best_score, gmask, _, _ = scored[0]
+    if first is not None:
+        first["contenders"] = [t[3] for t in scored if t[3] is not None and t[0] >= AMBIGUOUS * best_score]
     if debug is not None:
         full = np.zeros((H, W), np.uint8)
         lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)
@@ -318,6 +337,23 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if best_score <= 0:
         return Detection(None, 0.0, "no_plant")
     runner = scored[1][0] / best_score if len(scored) > 1 else 0.0
+    if runner > AMBIGUOUS:
+        # near-equal candidates close together are parts of one plant (clover trefoils whose
+        # stalks are too thin to segment): grow the best by every scored candidate within
+        # MERGE_GAP × the union's diameter, and score what is left against the union
+        rest = [t for t in scored[1:] if t[0] > 0]
+        while True:
+            ys2, xs2 = np.nonzero(gmask)
+            diam = math.hypot(np.ptp(xs2) + 1, np.ptp(ys2) + 1)
+            dist = cv2.distanceTransform((~gmask).astype(np.uint8), cv2.DIST_L2, 3)
+            near = [t for t in rest if float(dist[t[1]].min()) < MERGE_GAP * diam]
+            if not near:
+                break
+            for t in near:
+                gmask = gmask | t[1]
+                best_score += t[0]
+            rest = [t for t in rest if not any(t is u for u in near)]
+        runner = max((t[0] for t in rest), default=0.0) / best_score
 
     # ---- stage 2: centre on a plant-normalised grid from the full-resolution crop
     ys, xs = np.nonzero(gmask)
@@ -340,12 +376,20 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if roi is not None and not roi.contains(centre[None], 1.0)[0]:
         conf *= 0.6
     pix = (float(centre[0]), float(centre[1]))
-    if runner > 0.8:
+    if runner > AMBIGUOUS:
         return Detection(pix, float(np.clip(conf, 0, 0.3)), "ambiguous")
     return Detection(pix, float(np.clip(conf, 0.0, 1.0)))
 
 
 # ---- pieces ------------------------------------------------------------------------------------
+def _mask_box(gm: np.ndarray, to_full) -> tuple[float, float, float, float]:
+    """Full-image box (x0, y0, x1, y1) of a stage-1 mask."""
+    ys, xs = np.nonzero(gm)
+    fx0, fy0 = to_full(np.array([xs.min() - 0.5, ys.min() - 0.5]))
+    fx1, fy1 = to_full(np.array([xs.max() + 0.5, ys.max() + 0.5]))
+    return float(fx0), float(fy0), float(fx1), float(fy1)
+
+
 SOIL_REF = np.array([0.27, 0.33, 0.40], np.float32)  # typical soil chromaticity (B, G, R)
 
 
@@ -553,11 +597,17 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     return f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or strong)
 
 
+GROUP_GAP = 0.35  # × the group's diameter: largest gap a component may be joined across
+AMBIGUOUS = 0.8  # runner-up score / best score above which the choice is "ambiguous" ...
+MERGE_GAP = 0.5  # ... unless the contenders lie within this × the union's diameter: one plant
+# (seed 1 case 207: a clover in two halves 0.38 diameters apart; 0.7 joined a third plant)
+
+
 def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
-    """Join components separated by a gap smaller than 0.35 × the larger one's diameter.
+    """Join components separated by a gap smaller than GROUP_GAP × the larger one's diameter.
 
     Largest first: a group grows by every smaller component whose nearest pixel is within
-    0.35 × the group's diameter (distance transform of the group, minimum per label).
+    GROUP_GAP × the group's diameter (distance transform of the group, minimum per label).
     """
     comps = sorted(comps, key=lambda k: -stats[k, cv2.CC_STAT_AREA])
     if not comps:
@@ -575,7 +625,7 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
             ys, xs = np.nonzero(gm)
             diam = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
             # only components whose box comes within reach can join: crop to that window
-            r = int(math.ceil(0.35 * diam)) + 1
+            r = int(math.ceil(GROUP_GAP * diam)) + 1
             y0, y1 = max(ys.min() - r, 0), min(ys.max() + r + 1, lab.shape[0])
             x0, x1 = max(xs.min() - r, 0), min(xs.max() + r + 1, lab.shape[1])
             cand = [m for m in comps if m not in used and stats[m, cv2.CC_STAT_AREA] <= stats[k, cv2.CC_STAT_AREA]
@@ -586,7 +636,7 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
             sub = lab[y0:y1, x0:x1]
             dist = cv2.distanceTransform((~gm[y0:y1, x0:x1]).astype(np.uint8), cv2.DIST_L2, 3)
             dmin = ndimage.minimum(dist, sub, cand)
-            new = [m for m, d in zip(cand, np.atleast_1d(dmin)) if np.isfinite(d) and d < 0.35 * diam]
+            new = [m for m, d in zip(cand, np.atleast_1d(dmin)) if np.isfinite(d) and d < GROUP_GAP * diam]
             if not new:
                 break
             g += new
