@@ -264,8 +264,12 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
         l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
         sub = lab[t0:t0 + h0, l0:l0 + w0] == k
         f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, (0.0, 0.0), 1.0)
-        if _plant_like(f, vivid):
+        ok = _plant_like(f, vivid)
+        if ok:
             keep.append(k)
+        if debug is not None:  # every component's colour features and full-image centroid
+            f.update(ok=ok, vivid=vivid, c=[float(v) for v in to_full(cents[k])])
+            debug.setdefault("comps", []).append(f)
     comps = keep
     if not comps:
         return Detection(None, 0.0, "no_plant")
@@ -694,10 +698,12 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     uv, method = None, None
     ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
     # a fan (blades leaning one way from one base) first: its leaf axes converge at one end,
-    # where no middle-of-the-parts estimate lands
+    # where no middle-of-the-parts estimate lands (not for broad leaves, whose outlines vote
+    # across the plant: a half-disc of leaves had its "apex" on its rim, 0.43 L off)
     votes = plant_centre.axis_votes(vi, plant, size)
     n_peaks = plant_centre.vote_peaks(votes, size)
-    uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
+    if roundness < plant_centre.THIN_ROUND:  # blades: their edges run along them, towards the base
+        uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
     if uv is not None:
         method = "fan_apex"
     # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin

@@ -336,4 +336,7 @@ def test_hand_made_photos_of_various_sizes() -> None:
         det = detect_centre(img)
         assert det.reason is None, name
         err = np.linalg.norm(np.asarray(det.pixel) - t["centre"]) / t["plant_size_px"]
-        assert err < 0.5, (name, err)  # inside the plant; see docs/perception.md for the figures
+        # measured: rosette_small 0.18, rosette_vga 0.35 (leaves fanning one way from a broad
+        # base: the tree median slides up the leaves), rosette_big 0.18, grass_tuft 0.02,
+        # seedling 0.02; the fan apex taken for the half-disc rosette_small was 0.43
+        assert err < 0.4, (name, err)
