@@ -2,10 +2,14 @@
 
 Every estimator works on one plant's mask (bool, ~PLANT_PX across, see `capm_field.detector`)
 and, where it needs colour, the vegetation index on the same grid; coordinates are (x, y) grid
-pixels. They assume nothing about the camera. `capm_field.detector._centre_fullres` chooses:
+pixels. They assume nothing about the camera. `capm_field.detector._centre_fullres` chooses,
+the first that answers:
+  - thin blades leaning one way (a grass fan): `fan_apex`, where the blade axes converge;
   - plants with rounded parts (clover, seedlings, broad rosettes): `petiole_centre` (straight
     stalks crossing), `line_hub` (thin parts converging), `component_median` (separate parts
     round an empty middle), each only inside the broad parts' hull (`within_broad_hull`);
+  - compound leaves whose stalks do not show (clover trefoils): `compound_centre`, where rays
+    back from the three-lobed hubs agree;
   - leaf axes converging at many separate points (`vote_peaks` of `axis_votes`: trefoil hubs):
     the `geometric_median` of the plant;
   - otherwise the `tree_median`: Σ geodesic distance to the leaf tips minus leaf-axis votes.
