@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from . import plant_centre
+from . import compound_leaf, plant_centre
 from .camera import PinholeCamera
 
 Reason = Literal["no_plant", "ambiguous", "cut_by_border", "bad_image"]
@@ -728,7 +728,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
         # not show: the rays back from the hubs (after the stalk estimators, which are exact
         # when they answer: 0.3–2 mm cases became 5–12 mm when this came first)
-        uv = plant_centre.compound_centre(plant, vi, soil)
+        uv = compound_leaf.compound_centre(plant, vi, soil)
         if uv is not None:
             method = "compound_centre"
     if uv is None:

@@ -366,3 +366,16 @@ def test_hand_made_photos_of_various_sizes() -> None:
         # base: the tree median slides up the leaves), rosette_big 0.18, grass_tuft 0.02,
         # seedling 0.02; the fan apex taken for the half-disc rosette_small was 0.43
         assert err < 0.4, (name, err)
+
+
+def test_compound_centre_declines_plants_without_three_lobed_hubs() -> None:
+    """A single disc, a lone blade and a tiny mask are not compound-leaved plants: None."""
+    from capm_field.compound_leaf import compound_centre
+
+    for draw in (lambda m: cv2.circle(m, (40, 40), 25, 1, -1), lambda m: cv2.line(m, (10, 10), (70, 60), 1, 3),
+                 lambda m: cv2.circle(m, (40, 40), 2, 1, -1)):
+        m = np.zeros((80, 80), np.uint8)
+        draw(m)
+        plant = m > 0
+        vi = np.where(plant, 0.2, -0.03).astype(np.float32)
+        assert compound_centre(plant, vi, -0.03) is None
