@@ -510,8 +510,9 @@ def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_
 def _threshold(v: np.ndarray) -> tuple[float, float, float]:
     """(threshold, soil level, contrast) of the index over the search window.
 
-    Soil is the bulk of the pixels; its spread is measured on the lower side (plants only add
-    pixels on the upper side, but they rarely fill a tenth of a TROI view). Vegetation must stand
+    Soil is the bulk of the pixels; its spread σ is measured from the median to the 90th
+    percentile (plants rarely fill a tenth of a TROI view; the lower side, or the smaller of the
+    two, measured worse on bench seeds 0–3: more wrong centres). Vegetation must stand
     5 σ above the soil level, with the threshold kept within G* ∈ [0, 0.10] (the old floor 0.02
     lost olive grass and yellow-green seedlings; the per-candidate colour rule `_plant_like`
     now keeps bare soil empty).
