@@ -46,7 +46,7 @@ def _ring_kernels(r1: float, r2: float):
     return _K[key]
 
 
-def compound_hubs(plant: np.ndarray, vi: np.ndarray, soil: float, size: float, out: dict | None = None):
+def compound_hubs(plant: np.ndarray, vi: np.ndarray, soil: float, size: float):
     """Hub candidates: points round which the green index forms three lobes (3-fold harmonic
     of the index on a ring, strong and dominating the 1- and 2-fold ones, so leaf edges, blade
     ends and straight blades do not qualify). Returns (points (n, 2), weights, lobe phase)."""
@@ -70,12 +70,10 @@ def compound_hubs(plant: np.ndarray, vi: np.ndarray, soil: float, size: float, o
     ys, xs = ys[keep], xs[keep]
     c, s = amp[2]
     th0 = np.arctan2(s[ys, xs], c[ys, xs]) / 3
-    if out is not None:
-        out.update(S=S, c=c, s=s)
     return np.c_[xs, ys].astype(float), S[ys, xs], th0
 
 
-def compound_centre(plant: np.ndarray, vi: np.ndarray, soil: float, out: dict | None = None) -> np.ndarray | None:
+def compound_centre(plant: np.ndarray, vi: np.ndarray, soil: float) -> np.ndarray | None:
     """Centre of a plant built from compound leaves on stalks (clover, oxalis, medics), or None.
 
     Each compound leaf sits at the end of a straight stalk from the plant's centre, its middle
@@ -97,7 +95,7 @@ def compound_centre(plant: np.ndarray, vi: np.ndarray, soil: float, out: dict | 
     roundness = float(dt[plant].mean()) / size
     if roundness < G_ROUND:
         return None
-    P, w, th0 = compound_hubs(plant, vi, soil, size, out)
+    P, w, th0 = compound_hubs(plant, vi, soil, size)
     if len(P) < MIN_SUPPORT or float(np.sort(w)[-MIN_SUPPORT:].mean()) < G_HUB:
         return None  # the supporting hubs' mean strength could not reach G_HUB
     h, wd = plant.shape
@@ -118,8 +116,6 @@ def compound_centre(plant: np.ndarray, vi: np.ndarray, soil: float, out: dict | 
         g = geometric_median(np.c_[xs, ys].astype(float))
         V = V + PRIOR * np.exp(-0.5 * ((gx - g[0]) ** 2 + (gy - g[1]) ** 2) / (PRIOR_SIG * size) ** 2)
     iy, ix = np.unravel_index(int(np.argmax(V)), V.shape)
-    if out is not None:
-        out.update(V=V, P=P, th0=th0)
     sup = [i for i in range(len(P)) if per[i][iy, ix] > 0.5]
     if len(sup) < MIN_SUPPORT:
         return None
@@ -142,9 +138,6 @@ def compound_centre(plant: np.ndarray, vi: np.ndarray, soil: float, out: dict | 
     angs = np.sort(np.arctan2(P[sup, 1] - p[1], P[sup, 0] - p[0]))
     gap = float(np.max(np.diff(np.r_[angs, angs[0] + 2 * np.pi])))
     wabs = float(np.mean(w[sup]))
-    if out is not None:
-        out.update(sup=sup, peak=(ix, iy), nsup=len(sup), nhub=len(P), vpk=float(V[iy, ix]), v2=float(Vs.max()),
-                   round=roundness, gap=gap, wabs=wabs, sfrac=len(sup) / len(P))
     if not (wabs >= G_HUB and margin >= G_MARGIN and gap <= G_GAP):
         return None
     return p

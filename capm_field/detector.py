@@ -695,7 +695,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
     ys_, xs_ = np.nonzero(plant)
     size = math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
-    roundness = float(dtp[plant].mean()) / size
+    roundness = float(dtp[plant].mean()) / size  # mean half-width of the parts / plant size
     uv, method = None, None
     ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
     # a fan (blades leaning one way from one base) first: its leaf axes converge at one end,
@@ -744,9 +744,8 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
         # window leaves the two edges of a broad leaf voting along two parallel lines that
         # miss its axis (and the centre) by the half-width
-        half = float(dtp[plant].mean()) / size
-        scale = float(np.clip(plant_centre.AXIS_K * half, 0.015, plant_centre.AXIS_MAX))
-        fine = scale <= 0.015 or half >= plant_centre.THIN_ROUND  # votes unused for round parts (weight 0)
+        scale = float(np.clip(plant_centre.AXIS_K * roundness, 0.015, plant_centre.AXIS_MAX))
+        fine = scale <= 0.015 or roundness >= plant_centre.THIN_ROUND  # votes unused for round parts (weight 0)
         uv, ntips, sharp = plant_centre.tree_median(plant, vi, None, votes if fine else plant_centre.axis_votes(vi, plant, size, scale))
         if uv is None:
             return None, 0, 0.0

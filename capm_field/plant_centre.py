@@ -410,7 +410,7 @@ def _longest_empty_sector(angles: np.ndarray, bins: int = 72) -> float:
     return float(runs.max() if len(runs) else 0) * 2 * np.pi / bins
 
 
-def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, out: dict | None = None) -> np.ndarray | None:
+def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int) -> np.ndarray | None:
     """Apex of a fan-shaped plant (a grass tuft leaning one way), or None if it is not one.
 
     The blades of a fan run straight from their common base to tips that all lie on one side,
@@ -438,8 +438,6 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, ou
     if np.count_nonzero(sel) < 3:
         return None
     pix_gap = _longest_empty_sector(np.arctan2(dy[sel], dx[sel]))
-    if out is not None:
-        out["pix_gap"] = pix_gap
     if pix_gap < 0.8 * FAN_GAP or (n_peaks > FAN_MAX_PEAKS and pix_gap < FAN_CLEAR_GAP):
         return None
     band = cv2.dilate(plant.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)), iterations=max(1, int(BAND * size)))
@@ -461,8 +459,6 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, ou
     ang = np.sort(np.arctan2(d[far, 1], d[far, 0]))
     gap = float(np.max(np.diff(np.r_[ang, ang[0] + 2 * np.pi])))
     straight = float(g0[tips[far]].sum() / r[far].sum())
-    if out is not None:
-        out.update(gap=gap, straight=straight)
     if gap < FAN_GAP or not straight <= FAN_STRAIGHT:
         return None
     return p

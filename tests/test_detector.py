@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import cv2
@@ -116,8 +117,6 @@ def test_yellow_green_seedling_on_olive_soil() -> None:
 def test_clean_synthetic_rosettes_of_another_renderer() -> None:
     """Flat-coloured rosettes (ellipse leaves from a centre) on flat or lightly noisy soils, as a
     simple independent renderer draws them: found, centre within 0.1 L (median)."""
-    import math
-
     rng = np.random.default_rng(3)
     errs = []
     for soil in [(40, 70, 110), (120, 120, 120), (30, 30, 30), (150, 170, 190), (60, 90, 90)]:
@@ -147,8 +146,6 @@ def test_fan_shaped_grass_tufts_centre_at_the_base() -> None:
     polygons by OpenCV and blurred: the centre is the common base, not the middle of the blades
     (where Σ distance to the tips lies). Measured: median 0.04 L, 9 of 12 within 0.15 L; before
     `fan_apex` median 0.26 L, 7 of 12."""
-    import math
-
     rng = np.random.default_rng(21)
     errs = []
     for k in range(12):
@@ -174,8 +171,6 @@ def test_fan_shaped_grass_tufts_centre_at_the_base() -> None:
 
 def _trefoil(img: np.ndarray, hub: np.ndarray, a: float, s: float, col) -> None:
     """Three leaflets (ellipses) round `hub`, the middle one pointing along `a`."""
-    import math
-
     for da in (-2.0, 0.0, 2.0):
         c = hub + 0.55 * s * np.array([math.cos(a + da), math.sin(a + da)])
         cv2.ellipse(img, (round(c[0]), round(c[1])), (int(0.5 * s), int(0.4 * s)), math.degrees(a + da), 0, 360, col, -1, cv2.LINE_AA)
@@ -185,8 +180,6 @@ def test_clover_in_two_halves_is_one_plant() -> None:
     """Two equal trefoils on opposite petioles whose stalks do not show: two near-equal
     candidates just too far apart to be grouped, yet one plant (bench seed 1 case 207). Measured:
     10 of 10 found within 0.11 of the plant's radius; before the merge 8 of 10 "ambiguous"."""
-    import math
-
     rng = np.random.default_rng(4)
     errs = []
     for _ in range(10):
@@ -207,8 +200,6 @@ def test_clover_of_trefoils_on_uneven_hidden_stalks() -> None:
     angles and stalk lengths, stalks not drawn, blurred: the rays back from the trefoil hubs
     (`compound_centre`) answer 4 of 16 and put 7 of 16 within 0.15 of the plant size (4 without
     it; the geometric median of uneven trefoils is ~0.2–0.3 off)."""
-    import math
-
     rng = np.random.default_rng(12)
     errs = []
     for _ in range(16):
@@ -231,8 +222,6 @@ def test_clover_of_trefoils_on_uneven_hidden_stalks() -> None:
 def test_second_look_does_not_replace_an_ambiguous_choice_by_a_third_object() -> None:
     """Two equal pale plants ("ambiguous") and a small vivid yellow-green disc that only the
     CIELAB second look sees: the answer stays "ambiguous" (it was the disc, confidence 1)."""
-    import math
-
     rng = np.random.default_rng(5)
     img = _soil(rng, (720, 1280))
     for cx in (440, 840):
