@@ -725,18 +725,22 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     if uv is None and votes is None:
         votes = plant_centre.axis_votes(vi, plant, size)
         n_peaks = plant_centre.vote_peaks(votes, size)
+    compound = False
     if uv is None and n_peaks >= 2:
         # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
         # not show: the rays back from the hubs (after the stalk estimators, which are exact
         # when they answer: 0.3–2 mm cases became 5–12 mm when this came first)
-        uv = compound_leaf.compound_centre(plant, vi, soil)
+        hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
+        uv = compound_leaf.compound_centre(plant, vi, soil, hubs)
         if uv is not None:
             method = "compound_centre"
+        compound = compound_leaf.has_compound_leaves(hubs)
     if uv is None:
-        if plant_centre.SCATTER_PEAKS and n_peaks >= plant_centre.SCATTER_PEAKS:
+        if compound or plant_centre.SCATTER_PEAKS and n_peaks >= plant_centre.SCATTER_PEAKS:
             # leaf axes converge at many separate points (the hubs of compound leaves, e.g.
-            # clover trefoils, or the bases of scattered seedling leaves): no single apex to
-            # trust, the centre is the middle the parts are arranged around
+            # clover trefoils whose rays back did not meet, or the bases of scattered seedling
+            # leaves): no single apex to trust, the centre is the middle the parts are arranged
+            # around (the tree median slides along a trefoil's stalk: 15–46 mm off)
             method = "geometric_median"
             uv = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
     if uv is None:

@@ -368,3 +368,46 @@ def test_compound_centre_declines_plants_without_three_lobed_hubs() -> None:
         plant = m > 0
         vi = np.where(plant, 0.2, -0.03).astype(np.float32)
         assert compound_centre(plant, vi, -0.03) is None
+
+
+def test_compound_leaves_are_told_from_simple_leaves_and_blades() -> None:
+    """`has_compound_leaves` (trefoils whose rays back did not meet → the geometric median, not
+    the tree median): true for 4–6 trefoils round a centre, false for a rosette of long simple
+    leaves, a fan of grass blades and a disc, on an ~80 px stage-2 grid."""
+    from capm_field.compound_leaf import compound_hubs, has_compound_leaves
+
+    def verdict(draw) -> bool:
+        m = np.zeros((100, 100), np.uint8)
+        draw(m)
+        m = cv2.GaussianBlur(m.astype(np.float32), (0, 0), 0.8)
+        plant = m > 0.5
+        vi = np.where(plant, 0.05 + 0.15 * m, -0.03).astype(np.float32)
+        ys, xs = np.nonzero(plant)
+        size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
+        return has_compound_leaves(compound_hubs(plant, vi, -0.03, size))
+
+    rng = np.random.default_rng(3)
+    c = np.array([50.0, 50.0])
+    for _ in range(6):
+        n = int(rng.integers(4, 7))
+        angs = np.sort(rng.uniform(0, 2 * np.pi, n))
+        s = rng.uniform(11, 14)
+
+        def clover(m, angs=angs, s=s):
+            for a in angs:
+                _trefoil(m, c + rng.uniform(20, 30) * np.array([math.cos(a), math.sin(a)]), a, s, 1)
+
+        assert verdict(clover), angs
+
+    def rosette(m):
+        for a in np.linspace(0, 2 * np.pi, 7, endpoint=False) + 0.2:
+            tip = c + 40 * np.array([math.cos(a), math.sin(a)])
+            mid = (c + tip) / 2
+            cv2.ellipse(m, (round(mid[0]), round(mid[1])), (20, 6), math.degrees(a), 0, 360, 1, -1)
+
+    def grass(m):
+        for a in np.linspace(-0.8, 0.8, 9):
+            cv2.line(m, (50, 90), (round(50 + 70 * math.sin(a)), round(90 - 70 * math.cos(a))), 1, 2)
+
+    for name, draw in (("rosette", rosette), ("grass", grass), ("disc", lambda m: cv2.circle(m, (50, 50), 30, 1, -1))):
+        assert not verdict(draw), name
