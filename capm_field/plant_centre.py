@@ -295,13 +295,17 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     tips: np.ndarray = np.zeros(0, int)
     centre_node = node[c0]
     prev: set = set()
+    rows: dict[int, np.ndarray] = {}  # geodesic distances from each tip: the second pass finds mostly the same tips
     for _ in range(TM_ITER):
         g0 = dijkstra(G, directed=False, indices=[centre_node])[0]
         tips = _tips(g0, node, plant, size)
         if len(tips) == 0 or set(tips.tolist()) == prev:
             break  # same tips from the new centre: F, and so the minimum, would not change
         prev = set(tips.tolist())
-        D = dijkstra(G, directed=False, indices=tips, limit=np.inf)
+        new = [t for t in tips.tolist() if t not in rows]
+        if new:  # each source's row is computed on its own: the same as in a call with all tips
+            rows.update(zip(new, dijkstra(G, directed=False, indices=new, limit=np.inf)))
+        D = np.array([rows[t] for t in tips.tolist()])
         F = D.sum(axis=0) + 0.1 * D.max(axis=0)
         F[~np.isfinite(F)] = np.inf
         centre_node = int(np.argmin(F))
@@ -379,13 +383,31 @@ def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float, scale: float = 0.
     # nearest pixel along each line in float32/int32 (half the time of float64 rint); the
     # offset keeps the values positive so the cast rounds like floor(x + ½)
     off = np.float32(L + 1.5)
-    px = (xs.astype(np.float32)[:, None] + dx[:, None] * t[None, :] + off).astype(np.int32) - (L + 1)
-    py = (ys.astype(np.float32)[:, None] + dy[:, None] * t[None, :] + off).astype(np.int32) - (L + 1)
-    ok = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    ww = np.broadcast_to(wgt[ys, xs][:, None], px.shape)
-    acc = np.bincount((py * w + px)[ok], weights=ww[ok], minlength=h * w).reshape(h, w).astype(np.float32)
+    px = _line_pixels(xs, dx, t, off, L + 1, np.int32)
+    idx = _line_pixels(ys, dy, t, off, L + 1, np.int64)  # py, then the flat index (int64: no copy in bincount)
+    # points off the grid go to one extra bin (dropped), not through boolean selections of both
+    # arrays: every other bin sums the same weights in the same order
+    off_grid = (px.view(np.uint32) >= w) | (idx.view(np.uint64) >= h)  # negative → huge unsigned
+    idx *= w
+    idx += px
+    np.putmask(idx, off_grid, h * w)
+    ww = np.repeat(wgt[ys, xs].astype(np.float64), len(t))  # each line's weight on its points
+    acc = np.bincount(idx.ravel(), weights=ww, minlength=h * w + 1)[:h * w].reshape(h, w).astype(np.float32)
     acc = cv2.GaussianBlur(acc, (0, 0), max(1.0, 0.02 * size))
     return acc / (acc.max() + 1e-9)
+
+
+def _line_pixels(c: np.ndarray, d: np.ndarray, t: np.ndarray, off: np.float32, shift: int,
+                 dtype: type[np.signedinteger]) -> np.ndarray:
+    """(n, len(t)) integers (c + d·t + off) truncated, − shift, for each start c (n,) and direction
+    d (n,) float32 (float32 arithmetic); in place in one buffer (fresh large temporaries cost
+    page faults on the VM)."""
+    p = np.multiply(d[:, None], t[None, :])
+    p += c.astype(np.float32)[:, None]
+    p += off
+    q = p.astype(dtype)
+    q -= shift
+    return q
 
 
 FAN_GAP = 3.6  # rad: the far tips, seen from the apex, leave an empty sector at least this wide
