@@ -162,9 +162,23 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
                 return det  # the second look chose something else than the plants in question
             if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
                 return det2
+        elif det.reason is None and first.get("best_frac", 1.0) < SMALL_PLANT:
+            # a small first choice (seedling-sized) may be a vivid speck while the weed is a pale
+            # seedling only the second look segments: take the second look's choice when it
+            # scores clearly higher (bench seeds 0–3: wrong 39 → 36, > 15 mm 110 → 106)
+            second: dict = {}
+            det2 = _detect(image_bgr, roi, debug, vivid=True, first=second, win=win)
+            if det2.reason is None and second.get("best", 0.0) > SMALL_GAIN * first["best"]:
+                return det2
         return det
     except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
         return Detection(None, 0.0, "bad_image")
+
+
+SMALL_PLANT = 0.003  # first choice's score / ROI pixels below which the second look also runs
+# (~25 % of the bench's weed frames, mostly seedlings; 0.01 measured 1 fewer wrong on seeds 0–3 but
+# +5 ms median latency, 0.003 +1.7 ms)
+SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it
 
 
 def _in_boxes(uv, boxes: list, grow: float = 0.2) -> bool:
@@ -266,7 +280,8 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
 def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False,
             first: dict | None = None, win: _Window | None = None) -> Detection:
     """One look (G* or, with `vivid`, CIELAB −a*). `first` receives the full-image boxes of the
-    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about).
+    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about),
+    the best score under "best" and that score per ROI pixel under "best_frac".
     `win`: the frame's `_window(img, roi_in)` when already made."""
     if win is None:
         win = _window(img, roi_in)
@@ -379,6 +394,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     best_score, gmask, _, _ = scored[0]
     if first is not None:
         first["contenders"] = [t[3] for t in scored if t[3] is not None and t[0] >= AMBIGUOUS * best_score]
+        first["best"] = best_score  # vegetation area × centrality (see above), stage-1 pixels
+        first["best_frac"] = best_score / n_in
     if debug is not None:
         full = np.zeros((H, W), np.uint8)
         lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)

@@ -411,3 +411,26 @@ def test_compound_leaves_are_told_from_simple_leaves_and_blades() -> None:
 
     for name, draw in (("rosette", rosette), ("grass", grass), ("disc", lambda m: cv2.circle(m, (50, 50), 30, 1, -1))):
         assert not verdict(draw), name
+
+
+def test_pale_seedling_is_preferred_to_a_smaller_vivid_speck() -> None:
+    """A yellow-green seedling (G ≈ R: only the CIELAB second look segments it) and a smaller
+    vivid green pair of specks that the first look sees: the seedling, the larger plant, is the
+    answer (it was the speck before the second look also ran after a small first choice)."""
+    import capm_field.detector as det_mod
+
+    rng = np.random.default_rng(9)
+    img = _soil(rng, (720, 1280), colour=(95, 110, 115))
+    c = np.array([560.0, 330.0])
+    for a, L in ((-1.2, 45), (1.9, 40), (0.4, 30)):
+        d = np.array([np.cos(a), np.sin(a)])
+        m = c + d * L / 2
+        cv2.ellipse(img, (int(m[0]), int(m[1])), (L // 2, L // 5), np.degrees(a), 0, 360, (35, 118, 116), -1, cv2.LINE_AA)
+    speck = np.array([764.0, 418.0])
+    for dx in (-4, 4):
+        cv2.ellipse(img, (int(speck[0]) + dx, int(speck[1]) - dx // 2), (9, 4), 30, 0, 360, (40, 160, 60), -1, cv2.LINE_AA)
+    roi = Roi.from_ellipse((640, 360), (300, 300))
+    first = det_mod._detect(img, roi)  # the first look alone: the speck
+    assert first.reason is None and np.hypot(*(np.array(first.pixel) - speck)) < 10, first
+    det = detect_centre(img, roi)
+    assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 8, det
