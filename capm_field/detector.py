@@ -7,8 +7,9 @@ Classical pipeline, no learned weights, sizes relative to the plant or the searc
      white balance that maps the soil to a typical soil colour, max-pooled so thin blades and
      stalks survive; threshold at soil + 5 σ with hysteresis; components whose own colour is
      not a plant's (stones, straw) dropped; the rest grouped into plants and scored by green
-     area and centrality; none → "no_plant", a close runner-up → "ambiguous". Either answer
-     gets a second look on CIELAB −a* (yellow-green leaves) that accepts vivid plants only;
+     area and centrality; none → "no_plant", a close runner-up → "ambiguous". Either answer,
+     or a small (seedling-sized) first choice, gets a second look on CIELAB −a* (yellow-green
+     leaves) that accepts vivid plants only;
   3. stage 2, find its centre: the chosen plant re-cut from the full-resolution frame at
      ~PLANT_PX across, centre from `capm_field.plant_centre` (stalk crossings, the tree median
      of geodesic distances to the leaf tips with leaf-axis votes, or the geometric median of
@@ -162,7 +163,7 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
                 return det  # the second look chose something else than the plants in question
             if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
                 return det2
-        elif det.reason is None and first.get("best_frac", 1.0) < SMALL_PLANT:
+        elif det.reason is None and first["best"] < SMALL_PLANT * win.n_in:
             # a small first choice (seedling-sized) may be a vivid speck while the weed is a pale
             # seedling only the second look segments: take the second look's choice when it
             # scores clearly higher (bench seeds 0–3: wrong 39 → 36, > 15 mm 110 → 106)
@@ -175,7 +176,7 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
         return Detection(None, 0.0, "bad_image")
 
 
-SMALL_PLANT = 0.003  # first choice's score / ROI pixels below which the second look also runs
+SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below which the second look also runs
 # (~25 % of the bench's weed frames, mostly seedlings; 0.01 measured 1 fewer wrong on seeds 0–3 but
 # +5 ms median latency, 0.003 +1.7 ms)
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it
@@ -280,8 +281,8 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
 def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False,
             first: dict | None = None, win: _Window | None = None) -> Detection:
     """One look (G* or, with `vivid`, CIELAB −a*). `first` receives the full-image boxes of the
-    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about),
-    the best score under "best" and that score per ROI pixel under "best_frac".
+    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about)
+    and the best score under "best".
     `win`: the frame's `_window(img, roi_in)` when already made."""
     if win is None:
         win = _window(img, roi_in)
@@ -357,8 +358,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
             # candidate cut by the ROI margin (an object reaching in from outside the TROI)
             ys, xs = np.nonzero(gm)
-            fx0, fy0 = to_full(np.array([xs.min() - 0.5, ys.min() - 0.5]))
-            fx1, fy1 = to_full(np.array([xs.max() + 0.5, ys.max() + 0.5]))
+            fx0, fy0, fx1, fy1 = _mask_box(xs, ys, to_full)
             sub = img[max(int(fy0), 0):int(math.ceil(fy1)) + 1, max(int(fx0), 0):int(math.ceil(fx1)) + 1]
             vf = vegetation_index(sub, gains=gains, lab=vivid)
             mf = vf > 0.5 * (thr + soil_level)
@@ -378,14 +378,14 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             if roi is not None and not roi.contains(to_full(np.array([xs.mean(), ys.mean()]))[None], 1.0)[0]:
                 f["score"] = 0.0
             if f["score"] > 0 and first is not None:
-                box = _mask_box(xs, ys, to_full)
+                box = (fx0, fy0, fx1, fy1)
         else:
             f["score"] = 0.0
         scored.append((f["score"], gm, f["area"], box))
         if debug is not None:
             ys, xs = np.nonzero(gm)
             f["c"] = [float(c) for c in to_full(np.array([xs.mean(), ys.mean()]))]
-            f["bb"] = [float(c) for c in (*to_full(np.array([xs.min() - 0.5, ys.min() - 0.5])), *to_full(np.array([xs.max() + 0.5, ys.max() + 0.5])))]
+            f["bb"] = list(_mask_box(xs, ys, to_full))
             f.update(sig=sig, thr=thr - soil_level, soil=soil_level)
             debug.setdefault("cands", []).append(f)
     if not scored:
@@ -395,7 +395,6 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if first is not None:
         first["contenders"] = [t[3] for t in scored if t[3] is not None and t[0] >= AMBIGUOUS * best_score]
         first["best"] = best_score  # vegetation area × centrality (see above), stage-1 pixels
-        first["best_frac"] = best_score / n_in
     if debug is not None:
         full = np.zeros((H, W), np.uint8)
         lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)
@@ -424,8 +423,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
 
     # ---- stage 2: centre on a plant-normalised grid from the full-resolution crop
     ys, xs = np.nonzero(gmask)
-    bx0, bx1 = to_full(np.array([xs.min() - 0.5, 0]))[0], to_full(np.array([xs.max() + 0.5, 0]))[0]
-    by0, by1 = to_full(np.array([0, ys.min() - 0.5]))[1], to_full(np.array([0, ys.max() + 0.5]))[1]
+    bx0, by0, bx1, by1 = _mask_box(xs, ys, to_full)
     centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
                                           stage1=(gmask, x0, y0, sx, sy))
     if centre is None:
@@ -506,10 +504,22 @@ def greenness(bgr: np.ndarray) -> np.ndarray:
     The +30 keeps sensor noise in dark shadows from looking green.
     """
     f = bgr if bgr.dtype == np.float32 else bgr.astype(np.float32)
-    b, g, r = cv2.split(f) if f.ndim == 3 and f.shape[2] == 3 and f.flags.c_contiguous else (f[..., 0], f[..., 1], f[..., 2])
-    num = cv2.subtract(g, cv2.max(r, b))
-    den = cv2.add(cv2.add(b, g), cv2.add(r, 30.0))
-    return cv2.divide(num, den)
+    if f.ndim == 3 and f.shape[2] == 3 and f.flags.c_contiguous:
+        b, g, r = cv2.split(f)  # copies: `_gstar` may overwrite them
+    else:
+        b, g, r = (np.ascontiguousarray(f[..., k]) for k in range(3))
+    return _gstar(b, g, r)
+
+
+def _gstar(b: np.ndarray, g: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """G* of float32 planes, computed in place (b and r are overwritten): a fresh full-size float
+    image can cost more in page faults (~2 µs per 4 kB page on the VM) than the arithmetic."""
+    num = cv2.max(r, b)
+    cv2.subtract(g, num, dst=num)  # G − max(R, B)
+    cv2.add(b, g, dst=b)
+    cv2.add(r, 30.0, dst=r)
+    cv2.add(b, r, dst=b)  # (B + G) + (R + 30)
+    return cv2.divide(num, b, dst=num)
 
 
 def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: np.ndarray | None = None,
@@ -529,15 +539,7 @@ def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: n
     if bgr.dtype == np.uint8 and bgr.ndim == 3 and bgr.shape[2] == 3:
         # split the 8-bit planes first and scale each: ~4× faster than scaling the 3-channel
         # image to float and splitting that (same values)
-        b, g, r = (cv2.multiply(p, float(k), dtype=cv2.CV_32F) for p, k in zip(cv2.split(bgr), gains))
-        # the same operations as `greenness`, in place: a fresh full-size float image can cost
-        # more in page faults (~2 µs per 4 kB page on the VM) than the arithmetic on it
-        num = cv2.max(r, b)
-        cv2.subtract(g, num, dst=num)  # G − max(R, B)
-        cv2.add(b, g, dst=b)
-        cv2.add(r, 30.0, dst=r)
-        cv2.add(b, r, dst=b)  # (B + G) + (R + 30)
-        return cv2.divide(num, b, dst=num)
+        return _gstar(*(cv2.multiply(p, float(k), dtype=cv2.CV_32F) for p, k in zip(cv2.split(bgr), gains)))
     return greenness(_scaled(bgr, gains))
 
 

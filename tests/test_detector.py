@@ -96,6 +96,14 @@ def test_straw_is_not_a_plant() -> None:
     assert det.reason == "no_plant", det
 
 
+def _yellow_green_seedling(img: np.ndarray, c: np.ndarray) -> None:
+    """Three yellow-green leaves (G ≈ R) of 30–45 px from `c`."""
+    for a, L in ((-1.2, 45), (1.9, 40), (0.4, 30)):
+        d = np.array([np.cos(a), np.sin(a)])
+        m = c + d * L / 2
+        cv2.ellipse(img, (int(m[0]), int(m[1])), (L // 2, L // 5), np.degrees(a), 0, 360, (35, 118, 116), -1, cv2.LINE_AA)
+
+
 def test_yellow_green_seedling_on_olive_soil() -> None:
     """A vivid yellow-green seedling (G ≈ R, as in the bench demo's W12) on grey-olive soil:
     G − max(R, B) leaves it at the soil's level, the CIELAB second look finds it."""
@@ -104,10 +112,7 @@ def test_yellow_green_seedling_on_olive_soil() -> None:
     rng = np.random.default_rng(9)
     img = _soil(rng, colour=(95, 110, 115))
     c = np.array([320.0, 250.0])
-    for a, L in ((-1.2, 45), (1.9, 40), (0.4, 30)):
-        d = np.array([np.cos(a), np.sin(a)])
-        m = c + d * L / 2
-        cv2.ellipse(img, (int(m[0]), int(m[1])), (L // 2, L // 5), np.degrees(a), 0, 360, (35, 118, 116), -1, cv2.LINE_AA)
+    _yellow_green_seedling(img, c)
     roi = Roi.from_ellipse((320, 240), (200, 200))
     assert det_mod._detect(img, roi).reason == "no_plant"  # the first look alone misses it
     det = detect_centre(img, roi)
@@ -198,8 +203,9 @@ def test_clover_in_two_halves_is_one_plant() -> None:
 def test_clover_of_trefoils_on_uneven_hidden_stalks() -> None:
     """4–6 trefoils (ellipse leaflets, middle one pointing away from the centre) at uneven
     angles and stalk lengths, stalks not drawn, blurred: the rays back from the trefoil hubs
-    (`compound_centre`) answer 4 of 16 and put 7 of 16 within 0.15 of the plant size (4 without
-    it; the geometric median of uneven trefoils is ~0.2–0.3 off)."""
+    (`compound_centre`) answer 5 of 16 and put 9 of 16 within 0.15 of the plant size (session 3:
+    4 and 7, before the ring kernels came from the rounded cache key; 4 without `compound_centre`;
+    the geometric median of uneven trefoils is ~0.2–0.3 off)."""
     rng = np.random.default_rng(12)
     errs = []
     for _ in range(16):
@@ -215,7 +221,7 @@ def test_clover_of_trefoils_on_uneven_hidden_stalks() -> None:
             _trefoil(img, c + P * np.array([math.cos(a), math.sin(a)]), a + rng.uniform(-0.15, 0.15), s, col)
         det = detect_centre(cv2.GaussianBlur(img, (0, 0), 1.2))
         errs.append(math.inf if det.pixel is None else math.hypot(det.pixel[0] - c[0], det.pixel[1] - c[1]) / size)
-    assert sum(e < 0.15 for e in errs) >= 6, errs
+    assert sum(e < 0.15 for e in errs) >= 8, errs
     assert max(errs) < 0.5, errs
 
 
@@ -422,10 +428,7 @@ def test_pale_seedling_is_preferred_to_a_smaller_vivid_speck() -> None:
     rng = np.random.default_rng(9)
     img = _soil(rng, (720, 1280), colour=(95, 110, 115))
     c = np.array([560.0, 330.0])
-    for a, L in ((-1.2, 45), (1.9, 40), (0.4, 30)):
-        d = np.array([np.cos(a), np.sin(a)])
-        m = c + d * L / 2
-        cv2.ellipse(img, (int(m[0]), int(m[1])), (L // 2, L // 5), np.degrees(a), 0, 360, (35, 118, 116), -1, cv2.LINE_AA)
+    _yellow_green_seedling(img, c)
     speck = np.array([764.0, 418.0])
     for dx in (-4, 4):
         cv2.ellipse(img, (int(speck[0]) + dx, int(speck[1]) - dx // 2), (9, 4), 30, 0, 360, (40, 160, 60), -1, cv2.LINE_AA)
