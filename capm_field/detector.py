@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from . import compound_leaf, plant_centre
+from . import compound_leaf, leaf_axes, plant_centre
 from .camera import PinholeCamera
 
 Reason = Literal["no_plant", "ambiguous", "cut_by_border", "bad_image"]
@@ -462,7 +462,8 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
 
     The soil reference is the median colour of the less-green half of the pixels, so a colour
     cast of the light or the camera's white balance is removed before judging greenness. Gains
-    are bounded so a frame filled with leaves cannot be "corrected" into soil.
+    are bounded (GAIN_MIN..GAIN_MAX) so a frame filled with leaves cannot be "corrected" into soil
+    and a yellow or red soil is not made grey.
     """
     # a sample of ~20 000 pixels is enough for medians: stride the grid before masking
     k = max(1, int(math.sqrt(bgr.shape[0] * bgr.shape[1] / 20000)))
@@ -474,10 +475,15 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
     soil = f.take(np.flatnonzero(gs <= np.median(gs)), axis=0)
     ref = np.median(soil, axis=0) + 1.0
     g = SOIL_REF / (ref / ref.sum())
-    return np.clip((g / g[1]) ** WB_STRENGTH, 0.6, 1.6).astype(np.float32)
+    return np.clip((g / g[1]) ** WB_STRENGTH, GAIN_MIN, GAIN_MAX).astype(np.float32)
 
 
 WB_STRENGTH = 1.0  # exponent on the gains (0.5, 0.75 measured: no better)
+# gain bounds: enough for a light or camera colour cast; a soil that is itself yellow (sand,
+# straw) or red keeps most of its colour, else its "correction" turns a dark green leaf grey-
+# blue (0.6–1.6 lost 4 of 100 rosettes on yellow soils in bench/other_renderer_rosettes.py;
+# bench seeds 0–3 unchanged within ±1 case)
+GAIN_MIN, GAIN_MAX = 0.8, 1.25
 
 
 def _roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float, sy: float) -> np.ndarray:
@@ -809,6 +815,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         votes = plant_centre.axis_votes(vi, plant, size)
         n_peaks = plant_centre.vote_peaks(votes, size)
     compound = False
+    hubs = None
     if uv is None and n_peaks >= 2:
         # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
         # not show: the rays back from the hubs (after the stalk estimators, which are exact
@@ -822,10 +829,17 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         if compound or plant_centre.SCATTER_PEAKS and n_peaks >= plant_centre.SCATTER_PEAKS:
             # leaf axes converge at many separate points (the hubs of compound leaves, e.g.
             # clover trefoils whose rays back did not meet, or the bases of scattered seedling
-            # leaves): no single apex to trust, the centre is the middle the parts are arranged
-            # around (the tree median slides along a trefoil's stalk: 15–46 mm off)
+            # leaves, or the broad leaves of a rosette whose edges vote everywhere): no single
+            # apex in the votes (the tree median slides along a trefoil's stalk: 15–46 mm off).
+            # The middle the parts are arranged around, unless the leaves' axes traced back
+            # from their tips meet (rosettes; not when three-lobed hubs show: leaflet axes meet
+            # at their trefoil's hub, not at the plant's centre)
             method = "geometric_median"
             uv = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
+            if not compound and (hubs is None or len(hubs[1]) == 0 or float(np.max(hubs[1])) < leaf_axes.HUB_GUARD):
+                met = leaf_axes.tip_axes_centre(plant, uv)
+                if met is not None:
+                    uv, method = met[0], "tip_axes"
     if uv is None:
         method = "tree_median"
         # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
