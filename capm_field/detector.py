@@ -595,7 +595,11 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
 
     Soil is the bulk of the pixels; its spread σ is measured from the median to the 90th
     percentile (plants rarely fill a tenth of a TROI view; the lower side, or the smaller of the
-    two, measured worse on bench seeds 0–3: more wrong centres). Vegetation must stand
+    two, measured worse on bench seeds 0–3: more wrong centres). When a plant does fill ≥ a
+    tenth of the window (a close-up, a photo without a ROI: the 90th percentile lands on
+    leaves), the soil is the lower class of an Otsu split whose upper class is green and
+    ≥ BIG_SEP σ above it (dull rosettes covering 11–15 % of a frame: 13 of 30 "no_plant" → 4;
+    bench seeds 0–3: two frames of 1200 moved by ≤ 0.3 mm). Vegetation must stand
     5 σ above the soil level, with the threshold kept within G* ∈ [0, 0.10] (the old floor 0.02
     lost olive grass and yellow-green seedlings; the per-candidate colour rule `_plant_like`
     now keeps bare soil empty).
@@ -603,12 +607,30 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
     v = v.ravel()
     med, p90 = (float(x) for x in np.percentile(v, [50, 90]))
     sig = max((p90 - med) / 1.28, 0.004)
+    if p90 > med:
+        # a plant filling ≥ a tenth of the window (a close-up, a photo without a ROI) puts the
+        # 90th percentile, or the median, on leaves: then the soil is the lower class of a
+        # two-class (Otsu) split of the index, when the upper one is green and far above it
+        lo, hi = (float(x) for x in np.percentile(v, [0.5, 99.5]))
+        if hi > lo:
+            q = np.clip((v - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+            t, _ = cv2.threshold(q.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+            t = lo + t * (hi - lo) / 255.0
+            low = v[v <= t]
+            frac = 1.0 - len(low) / len(v)
+            if frac >= BIG_PLANT and len(low) > 100:
+                m_l, p_l = (float(x) for x in np.percentile(low, [50, 90]))
+                s_l = max((p_l - m_l) / 1.28, 0.004)
+                m_u = float(np.median(v[v > t]))
+                if m_u > 0 and m_u - m_l >= BIG_SEP * s_l:
+                    med, sig = m_l, s_l
     thr = float(np.clip(med + THR_SIGMAS * sig, THR_FLOOR, 0.10))
     above = v[v > thr]
     contrast = float(np.median(above) - med) if len(above) else 0.0
     return thr, med, contrast
 
 
+BIG_PLANT, BIG_SEP = 0.1, 8.0  # upper Otsu class share, and its median over the lower's in the lower's σ
 THR_FLOOR = 0.0  # G* > 0: green above both red and blue; soil/stone/straw are rejected per candidate
 THR_SIGMAS = 5.0
 
