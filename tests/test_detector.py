@@ -542,3 +542,25 @@ def test_dull_plant_filling_the_frame_is_found() -> None:
         det = detect_centre(cv2.GaussianBlur(img, (0, 0), 1.5))
         found += det.reason is None and math.hypot(det.pixel[0] - c[0], det.pixel[1] - c[1]) < 0.3 * 300
     assert found >= 10, found  # measured 11
+
+
+def test_clover_with_unseen_stalks_centre_where_trefoils_point_away() -> None:
+    """3–6 trefoils on uneven, invisible petioles (1.2–3.5 leaflet lengths) round an empty
+    centre, unevenly spaced: the median of the parts' centroids is pulled by the long petioles;
+    the middle leaflets point straight away from the centre (`compound_centre`, asked before the
+    component median). Measured: 10 of 12 within 0.1 R; with the component median first 6."""
+    errs = []
+    for k in range(12):
+        rng = np.random.default_rng(200 + k)
+        img = _soil(rng, (720, 1280), colour=(int(rng.integers(50, 100)), int(rng.integers(80, 130)), int(rng.integers(110, 170))))
+        c = np.array([640 + rng.uniform(-80, 80), 360 + rng.uniform(-50, 50)])
+        col = (int(rng.integers(30, 70)), int(rng.integers(110, 170)), int(rng.integers(40, 90)))
+        n, s = int(rng.integers(3, 7)), rng.uniform(14, 26)
+        R = 0.0
+        for a in rng.uniform(0, 2 * np.pi) + np.cumsum(rng.dirichlet(np.full(n, 2.0)) * 2 * np.pi):
+            P = s * rng.uniform(1.2, 3.5)
+            _trefoil(img, c + P * np.array([math.cos(a), math.sin(a)]), a, s, col)
+            R = max(R, P + s)
+        det = detect_centre(cv2.GaussianBlur(img, (0, 0), 1.0))
+        errs.append(math.inf if det.pixel is None else math.hypot(det.pixel[0] - c[0], det.pixel[1] - c[1]) / R)
+    assert sum(e < 0.1 for e in errs) >= 9, np.round(errs, 3)
