@@ -823,8 +823,9 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     # parts meet, then (below) where trefoils point away from, or the middle of the parts
     # arranged round an empty centre; blades and narrow leaves (and round plants where none of
     # these applies): the tree median, computed only then
+    parts = None  # (size, broad-parts mask): made when first needed, shared by the estimators below
     if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
-        parts = plant_centre.broad_parts(plant)  # shared by both stalk-based estimates
+        parts = plant_centre.broad_parts(plant)
         for name, fn in (("petiole_centre", lambda: plant_centre.petiole_centre(plant, vi, soil, thr, parts)),
                          ("line_hub", lambda: plant_centre.line_hub(plant, parts))):
             uv = fn()
@@ -853,6 +854,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         # middle leaflets point away from the centre (first, it took 13 of 24 stalkless
         # other-renderer clovers at 0.2–0.4 R off; after: those went to `compound_centre`)
         uv = plant_centre.component_median(plant)
+        parts = parts or plant_centre.broad_parts(plant)
         if uv is not None and not plant_centre.within_broad_hull(uv, parts):
             uv = None
         if uv is not None:

@@ -8,10 +8,10 @@ the leaf's end ("cap") is the axis. Where most of these lines meet is the centre
 the mask (geometric or geodesic median) is pulled towards the biggest leaves instead.
 
 The detector asks it where the leaf-axis votes show no single apex and no compound leaves
-(`detector._centre_fullres`). Measured on uneven rosettes drawn as clean 80 px masks (3–8
-lens, elliptic or obovate leaves, Dirichlet gaps; /tmp-free script in docs/perception.md):
-median error 0.03–0.06 L, where the tree median gives 0.06–0.21 L and the geometric median
-0.13–0.17 L. The line from a tip is off by 2.3° (median), 8.8° (p90).
+(`detector._centre_fullres`). Measured on 100 uneven rosettes drawn as clean 80 px masks
+(`bench/other_renderer_rosettes.py`: 3–8 lens, elliptic or obovate leaves, Dirichlet gaps):
+it answers 86 %, median error 0.054 L, 69 % within 0.1 L; the tree median 0.200 L (31 %),
+the geometric median 0.210 L (18 %).
 """
 
 from __future__ import annotations
