@@ -22,6 +22,7 @@ and the reasons behind each threshold: docs/perception.md.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import Literal, Union
@@ -32,6 +33,8 @@ from scipy import ndimage
 
 from . import compound_leaf, leaf_axes, plant_centre
 from .camera import PinholeCamera
+
+log = logging.getLogger(__name__)
 
 Reason = Literal["no_plant", "ambiguous", "cut_by_border", "bad_image"]
 
@@ -173,6 +176,9 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
                 return det2
         return det
     except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
+        # ... but it must not go unseen either: the traceback goes to the log (and so the run's)
+        log.exception("weed-centre detector failed on a %s %s image; answering bad_image",
+                      getattr(image_bgr, "shape", "?"), getattr(image_bgr, "dtype", type(image_bgr).__name__))
         return Detection(None, 0.0, "bad_image")
 
 

@@ -319,6 +319,31 @@ def test_bad_inputs_never_raise(img) -> None:
     assert det.reason == "bad_image" and det.pixel is None
 
 
+def test_expected_bad_input_is_not_logged_as_a_failure(caplog) -> None:
+    """Bad input is answered by the input checks (no traceback in the log); only a failure inside
+    the detector goes to the log, with its traceback, before "bad_image" is answered."""
+    import capm_field.detector as det_mod
+
+    with caplog.at_level("ERROR", logger="capm_field.detector"):
+        for img in (np.zeros((480, 640), np.uint8), np.zeros((480, 640, 3), np.float32), "not an image", None,
+                    np.zeros((480, 640, 3), np.uint8)):
+            assert detect_centre(img).reason == "bad_image"
+    assert not caplog.records, [r.getMessage() for r in caplog.records]
+
+    def broken(*a, **k):
+        raise RuntimeError("bug")
+
+    img = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    orig = det_mod._detect
+    det_mod._detect = broken
+    try:
+        with caplog.at_level("ERROR", logger="capm_field.detector"):
+            assert detect_centre(img).reason == "bad_image"
+    finally:
+        det_mod._detect = orig
+    assert len(caplog.records) == 1 and caplog.records[0].exc_info is not None
+
+
 def test_bad_roi_never_raises() -> None:
     img = np.random.default_rng(0).integers(0, 255, (100, 100, 3), dtype=np.uint8)
     for roi in (np.eye(3), "x", ((10, 10), (-5, 3), 0), np.full((3, 3), np.nan)):
