@@ -175,7 +175,7 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             if det2.reason is None and second.get("best", 0.0) > SMALL_GAIN * first["best"]:
                 return det2
         return det
-    except Exception:  # noqa: BLE001 - the contract is "never raise"; a bug must not stop a mission
+    except Exception:  # the contract is "never raise": a bug must not stop a mission ...
         # ... but it must not go unseen either: the traceback goes to the log (and so the run's)
         log.exception("weed-centre detector failed on a %s %s image; answering bad_image",
                       getattr(image_bgr, "shape", "?"), getattr(image_bgr, "dtype", type(image_bgr).__name__))
