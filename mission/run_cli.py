@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import logging
 import os
 import sys
 import time
@@ -94,7 +95,7 @@ def main(argv: list[str]) -> int:
     from capm_field.robot_model import RobotModel
 
     from .executive import Executive
-    from .runlog import RunLog
+    from .runlog import RunLog, RunLogHandler
 
     robot = RobotModel(mission.robot)
     quiet = a.quiet
@@ -146,10 +147,15 @@ def main(argv: list[str]) -> int:
         drivers.close()
         log.close()
         raise UserError("--faults applies to bench missions only")
+    # warnings and errors of the software's Python loggers go to the console and into the run log
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    to_runlog = RunLogHandler(log, now_ns)
+    logging.getLogger().addHandler(to_runlog)
     try:
         ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts, hook=hook)
         result = ex.run()
     finally:
+        logging.getLogger().removeHandler(to_runlog)
         progress.close()
         try:
             drivers.close()

@@ -16,9 +16,11 @@ No fsync: a kernel crash or power loss of the computer can still lose the page c
 from __future__ import annotations
 
 import atexit
+import logging
 import struct
 import threading
 import time
+import traceback
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -462,3 +464,28 @@ def _fill_key_state(m, ks: KeyState) -> None:
         m.target.x, m.target.y = float(ks.target[0]), float(ks.target[1])
     m.radius = float(ks.radius or 0.0)
     m.frame_id = FIELD
+
+
+class RunLogHandler(logging.Handler):
+    """Python log records (WARNING and above) as lines of the run's /log topic, named after their
+    logger and with the traceback when there is one: a driver warning or a detector failure
+    during a run is kept with the run, where the review finds it, not only on a console."""
+
+    _LEVEL_OF = ((logging.CRITICAL, "fatal"), (logging.ERROR, "error"), (logging.WARNING, "warning"),
+                 (logging.INFO, "info"))
+
+    def __init__(self, log: RunLog, now_ns, level: int = logging.WARNING) -> None:
+        super().__init__(level)
+        self._runlog = log
+        self._now_ns = now_ns
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+            if record.exc_info:
+                text += "\n" + "".join(traceback.format_exception(*record.exc_info)).rstrip()
+            level = next((name for lv, name in self._LEVEL_OF if record.levelno >= lv), "debug")
+            self._runlog.event(self._now_ns(), level, text, name=record.name)
+        except Exception:  # noqa: BLE001 - a log line must never take the run down (logging.Handler idiom)
+            self.handleError(record)
+

@@ -148,3 +148,33 @@ def test_field_planner_mission(tmp_path):
     assert all(m <= 2 for m in moves["field"])
     assert all(m >= 2 for m in moves["c"] if m)  # (a skipped target may have fewer)
     assert sum(moves["field"]) <= sum(moves["c"])
+
+
+def test_a_detector_failure_is_kept_in_the_run_log(tmp_path):
+    """A bug inside the detector (here: stage 1 raises) must neither stop the mission nor pass
+    unseen: the target is not flamed (no MPOI), the run ends normally, and the traceback is a
+    /log line of run.mcap, named after the detector's logger, and on the console."""
+    m = tmp_path / "f.yaml"
+    m.write_text(
+        "field:\n  trois:\n    - {id: A, x: 1.0, y: 0.3, r: 0.22}\nstart: {x: 0, y: 0}\n"
+        f"drivers: {{kind: bench, seed: 2}}\noutput: {{dir: {tmp_path / 'out'}}}\n"
+    )
+    code = (
+        "import sys, capm_field.detector as d\n"
+        "def boom(*a, **k):\n    raise RuntimeError('injected detector bug')\n"
+        "d._detect = boom\n"
+        "from capm_field.cli import main\n"
+        f"sys.exit(main(['run', {str(m)!r}, '--quiet']))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180, check=False)
+    assert r.returncode == 0, r.stderr
+    assert "injected detector bug" in r.stderr
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert not s["targets"][0]["flamed"] and s["targets"][0]["reason"]
+    from mcap_protobuf.decoder import DecoderFactory
+
+    with open(tmp_path / "out" / "run.mcap", "rb") as f:
+        reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        logs = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/log"])]
+    bug = [x for x in logs if x.name == "capm_field.detector"]
+    assert bug and "RuntimeError: injected detector bug" in bug[0].message and bug[0].level == 4, [x.message[:80] for x in logs]

@@ -328,3 +328,31 @@ def test_sigkill_loses_at_most_one_second(tmp_path):
     assert salvage(path, fixed).messages == sum(1 for _ in iter_run(path))
     summary, msgs = read_all(fixed)
     assert summary is not None and [m[0] for m in msgs["/tf"]] == stamps
+
+
+def test_python_warnings_and_tracebacks_go_to_the_log_topic(tmp_path, robot, camera):
+    """`RunLogHandler`: a WARNING record and an ERROR with its traceback become /log lines named
+    after their logger, at the matching level; INFO stays out (handler level WARNING)."""
+    import logging
+
+    from mission.runlog import RunLogHandler
+
+    path = tmp_path / "run.mcap"
+    lg = logging.getLogger("capm_field.test_runlog_handler")
+    lg.propagate = False
+    with RunLog(path, robot, camera, bench=True) as log:
+        h = RunLogHandler(log, lambda: T0)
+        lg.addHandler(h)
+        try:
+            lg.info("not kept")
+            lg.warning("zenoh session %s lost", "body")
+            try:
+                raise RuntimeError("bug in stage 2")
+            except RuntimeError:
+                lg.exception("detector failed")
+        finally:
+            lg.removeHandler(h)
+    _, msgs = read_all(path)
+    lines = [(m[3].name, m[3].level, m[3].message) for m in msgs["/log"] if m[3].name == lg.name]
+    assert [(lv, t.splitlines()[0]) for _, lv, t in lines] == [(3, "zenoh session body lost"), (4, "detector failed")]
+    assert "RuntimeError: bug in stage 2" in lines[1][2] and "Traceback" in lines[1][2]
