@@ -865,21 +865,27 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
             uv = None
         if uv is not None:
             method = "component_median"
+    scattered = plant_centre.SCATTER_PEAKS and n_peaks >= plant_centre.SCATTER_PEAKS
+    if uv is None and not compound and (scattered or n_peaks >= leaf_axes.MIN_PEAKS and roundness >= leaf_axes.MIN_ROUND) \
+            and (hubs is None or len(hubs[1]) == 0 or float(np.max(hubs[1])) < leaf_axes.HUB_GUARD):
+        # leaf axes votes with several peaks (a rosette's broad leaves: their edges vote
+        # everywhere, and the middle of the mask is pulled towards the biggest leaves): where the
+        # leaves' axes traced back from their tips meet. Not when three-lobed hubs show (leaflet
+        # axes meet at their trefoil's hub, not at the plant's centre), nor for 3 peaks of thin
+        # blades (grass: the tree median and its votes find their base)
+        met = leaf_axes.tip_axes_centre(plant, plant_centre.geometric_median(np.c_[xs_, ys_].astype(float)))
+        if met is not None:
+            uv, method = met[0], "tip_axes"
     if uv is None:
-        if compound or plant_centre.SCATTER_PEAKS and n_peaks >= plant_centre.SCATTER_PEAKS:
+        if compound or scattered:
             # leaf axes converge at many separate points (the hubs of compound leaves, e.g.
             # clover trefoils whose rays back did not meet, or the bases of scattered seedling
-            # leaves, or the broad leaves of a rosette whose edges vote everywhere): no single
-            # apex in the votes (the tree median slides along a trefoil's stalk: 15–46 mm off).
-            # The middle the parts are arranged around, unless the leaves' axes traced back
-            # from their tips meet (rosettes; not when three-lobed hubs show: leaflet axes meet
-            # at their trefoil's hub, not at the plant's centre)
+            # leaves, or the broad leaves of a rosette whose edges vote everywhere, where the
+            # leaf axes did not meet either): no single apex in the votes (the tree median
+            # slides along a trefoil's stalk: 15–46 mm off); the middle the parts are arranged
+            # around
             method = "geometric_median"
             uv = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
-            if not compound and (hubs is None or len(hubs[1]) == 0 or float(np.max(hubs[1])) < leaf_axes.HUB_GUARD):
-                met = leaf_axes.tip_axes_centre(plant, uv)
-                if met is not None:
-                    uv, method = met[0], "tip_axes"
     if uv is None:
         method = "tree_median"
         # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
