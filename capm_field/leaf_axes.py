@@ -10,8 +10,9 @@ the mask (geometric or geodesic median) is pulled towards the biggest leaves ins
 The detector asks it where the leaf-axis votes show no single apex and no compound leaves
 (`detector._centre_fullres`). Measured on 100 uneven rosettes drawn as clean 80 px masks
 (`bench/other_renderer_rosettes.py`: 3–8 lens, elliptic or obovate leaves, Dirichlet gaps):
-it answers 86 %, median error 0.054 L, 69 % within 0.1 L; the tree median 0.200 L (31 %),
-the geometric median 0.210 L (18 %).
+it answers 87 %, median error 0.050 L, 71 % within 0.1 L; the tree median 0.200 L (31 %),
+the geometric median 0.210 L (18 %). About 1.2 ms per call (the vote on every other pixel,
+float32; on every pixel, float64: 3.7 ms; bench seeds 0–3: 1 of 1200 frames moved, by 0.2 mm).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ TOL_MIN = 1.5        # px
 MIN_SUPPORT = 3
 MIN_SHARE = 0.55     # of the tips: a trefoil hub (3 of ≥ 6 leaflet tips) is not the centre
 MAX_TIPS = 16
+VOTE_STEP = 2  # px between the points of the vote grid
 # when the detector asks (`detector._centre_fullres`): the leaf-axis votes have ≥ SCATTER_PEAKS
 # (4) peaks, or ≥ MIN_PEAKS with broad parts (mean half-width ≥ MIN_ROUND × size; 3 peaks of
 # grass blades measured worse: 3 grass tufts on bench seeds 0–3, 2 of them worse by 7–27 mm),
@@ -110,19 +112,19 @@ def tip_axes_centre(plant: np.ndarray, c0: np.ndarray, out: dict | None = None) 
 
     def fit(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per axis: distance ahead of its tip to X's foot, and X's distance from the axis."""
-        v = X[..., None, :] - T
-        along = (v * D).sum(-1)
-        perp = np.abs(v[..., 0] * D[:, 1] - v[..., 1] * D[:, 0])
-        return along, perp
+        Tx, Ty, Dx, Dy = (a.astype(X.dtype) for a in (T[:, 0], T[:, 1], D[:, 0], D[:, 1]))
+        vx, vy = X[..., 0, None] - Tx, X[..., 1, None] - Ty
+        return vx * Dx + vy * Dy, np.abs(vx * Dy - vy * Dx)
 
-    # soft vote on the pixel grid: each axis a tube widening with the distance from its tip
+    # soft vote on every other pixel (the peak only seeds the least squares below): each axis a
+    # tube widening with the distance from its tip
     h, w = plant.shape
-    gy, gx = np.mgrid[0:h, 0:w].astype(np.float64)
+    gy, gx = np.mgrid[0:h:VOTE_STEP, 0:w:VOTE_STEP].astype(np.float32)
     along, perp = fit(np.dstack([gx, gy]))
-    sig = np.maximum(TOL_MIN, TOL * along)
+    sig = np.maximum(np.float32(TOL_MIN), np.float32(TOL) * along)
     V = (np.exp(-0.5 * (perp / sig) ** 2) * (along > 0)).sum(-1)
     iy, ix = np.unravel_index(int(np.argmax(V)), V.shape)
-    X = np.array([ix, iy], float)
+    X = np.array([gx[iy, ix], gy[iy, ix]], float)
     for _ in range(3):  # weighted least squares over the supporting axes (weight 1/σ²)
         along, perp = fit(X)
         sig = np.maximum(TOL_MIN, TOL * along)
