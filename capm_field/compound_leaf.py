@@ -76,12 +76,16 @@ def compound_hubs(plant: np.ndarray, vi: np.ndarray, soil: float, size: float):
     return np.c_[xs, ys].astype(float), S[ys, xs], th0
 
 
+def strongest_hub(hubs: tuple | None) -> float:
+    """Strength of the strongest hub `compound_hubs` found (0 for none, or hubs not computed)."""
+    return float(np.max(hubs[1])) if hubs is not None and len(hubs[1]) else 0.0
+
+
 def has_compound_leaves(hubs: tuple) -> bool:
     """Whether `compound_hubs` found compound leaves: ≥ MIN_SUPPORT hubs, the strongest ≥ LEAVES_HUB
     (clovers the ray gate declined had 0.12–0.20; rosettes and grass that reach this point
     rarely: seeds 0–3, one grass tuft of 136)."""
-    _, w, _ = hubs
-    return len(w) >= MIN_SUPPORT and float(np.max(w)) >= LEAVES_HUB
+    return len(hubs[1]) >= MIN_SUPPORT and strongest_hub(hubs) >= LEAVES_HUB
 
 
 def compound_centre(plant: np.ndarray, vi: np.ndarray, soil: float, hubs: tuple | None = None) -> np.ndarray | None:

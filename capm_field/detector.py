@@ -13,7 +13,8 @@ Classical pipeline, no learned weights, sizes relative to the plant or the searc
   3. stage 2, find its centre: the chosen plant re-cut from the full-resolution frame at
      ~PLANT_PX across, centre from `capm_field.plant_centre` (stalk crossings, the tree median
      of geodesic distances to the leaf tips with leaf-axis votes, or the geometric median of
-     plants whose leaf axes converge at many points, e.g. clover);
+     plants whose leaf axes converge at many points), `capm_field.compound_leaf` (clover
+     trefoils) or `capm_field.leaf_axes` (rosettes: where the leaves' axes meet);
   4. "cut_by_border" when the plant touches the frame edge near the centre; confidence.
 The pixel returned follows the camera module's convention (pixel centres at integer coordinates);
 `capm_field.camera.PinholeCamera.pixel_to_ground` maps it to the field (H⁻¹). Measured figures
@@ -860,20 +861,22 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         # middle leaflets point away from the centre (first, it took 13 of 24 stalkless
         # other-renderer clovers at 0.2–0.4 R off; after: those went to `compound_centre`)
         uv = plant_centre.component_median(plant)
-        parts = parts or plant_centre.broad_parts(plant)
-        if uv is not None and not plant_centre.within_broad_hull(uv, parts):
-            uv = None
+        if uv is not None:
+            parts = parts or plant_centre.broad_parts(plant)
+            uv = uv if plant_centre.within_broad_hull(uv, parts) else None
         if uv is not None:
             method = "component_median"
-    scattered = plant_centre.SCATTER_PEAKS and n_peaks >= plant_centre.SCATTER_PEAKS
+    scattered = bool(plant_centre.SCATTER_PEAKS) and n_peaks >= plant_centre.SCATTER_PEAKS
+    gmed = None  # the plant's geometric median: made when first needed
     if uv is None and not compound and (scattered or n_peaks >= leaf_axes.MIN_PEAKS and roundness >= leaf_axes.MIN_ROUND) \
-            and (hubs is None or len(hubs[1]) == 0 or float(np.max(hubs[1])) < leaf_axes.HUB_GUARD):
+            and compound_leaf.strongest_hub(hubs) < leaf_axes.HUB_GUARD:
         # leaf axes votes with several peaks (a rosette's broad leaves: their edges vote
         # everywhere, and the middle of the mask is pulled towards the biggest leaves): where the
         # leaves' axes traced back from their tips meet. Not when three-lobed hubs show (leaflet
         # axes meet at their trefoil's hub, not at the plant's centre), nor for 3 peaks of thin
         # blades (grass: the tree median and its votes find their base)
-        met = leaf_axes.tip_axes_centre(plant, plant_centre.geometric_median(np.c_[xs_, ys_].astype(float)))
+        gmed = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
+        met = leaf_axes.tip_axes_centre(plant, gmed)
         if met is not None:
             uv, method = met[0], "tip_axes"
     if uv is None:
@@ -885,7 +888,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
             # slides along a trefoil's stalk: 15–46 mm off); the middle the parts are arranged
             # around
             method = "geometric_median"
-            uv = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
+            uv = gmed if gmed is not None else plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
     if uv is None:
         method = "tree_median"
         # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller

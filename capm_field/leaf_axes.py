@@ -82,7 +82,7 @@ def leaf_tips(plant: np.ndarray, c0: np.ndarray, size: float) -> np.ndarray:
     return T[np.argsort(-R)][:MAX_TIPS]
 
 
-def tip_axes_centre(plant: np.ndarray, c0: np.ndarray, out: dict | None = None) -> tuple[np.ndarray, int] | None:
+def tip_axes_centre(plant: np.ndarray, c0: np.ndarray) -> tuple[np.ndarray, int] | None:
     """(Meeting point of the leaves' axes in mask pixels, number of supporting tips), or None.
 
     Each tip's axis runs from the tip through the centroid of the plant's pixels within CAP × the
@@ -90,8 +90,7 @@ def tip_axes_centre(plant: np.ndarray, c0: np.ndarray, out: dict | None = None) 
     ahead of its tip with a tube whose width grows with the distance (an angular error of about
     TOL rad); the peak is refined by least squares over the axes passing within 2 tube widths
     (weights 1/width²). None unless ≥ MIN_SUPPORT axes and ≥ MIN_SHARE of the tips support it
-    and it lies inside the plant's convex hull. `out` gets the tips, axes, meeting point and
-    support (debug).
+    and it lies inside the plant's convex hull.
     """
     ys, xs = np.nonzero(plant)
     if len(xs) < 30:
@@ -141,8 +140,6 @@ def tip_axes_centre(plant: np.ndarray, c0: np.ndarray, out: dict | None = None) 
     along, perp = fit(X)
     sup = (along > 0) & (perp <= 2 * np.maximum(TOL_MIN, TOL * along))
     best_n = int(sup.sum())
-    if out is not None:
-        out.update(tips=T, axes=D, meeting=X.copy(), support=best_n)
     if best_n < MIN_SUPPORT or best_n < MIN_SHARE * len(T):
         return None
     hull = cv2.convexHull(P.astype(np.float32))

@@ -6,12 +6,14 @@ pixels. They assume nothing about the camera. `capm_field.detector._centre_fullr
 the first that answers:
   - thin blades leaning one way (a grass fan): `fan_apex`, where the blade axes converge;
   - plants with rounded parts (clover, seedlings, broad rosettes): `petiole_centre` (straight
-    stalks crossing), `line_hub` (thin parts converging), `component_median` (separate parts
-    round an empty middle), each only inside the broad parts' hull (`within_broad_hull`);
+    stalks crossing), `line_hub` (thin parts converging), each only inside the broad parts'
+    hull (`within_broad_hull`);
   - compound leaves whose stalks do not show (clover trefoils): `capm_field.compound_leaf`,
-    where rays back from the three-lobed hubs agree;
-  - leaf axes converging at many separate points (`vote_peaks` of `axis_votes`: trefoil hubs):
-    the `geometric_median` of the plant;
+    where rays back from the three-lobed hubs agree; then, for rounded parts,
+    `component_median` (separate parts round an empty middle, same hull rule);
+  - leaf axes converging at several separate points (`vote_peaks` of `axis_votes`): where the
+    leaves' axes traced back from their tips meet (`capm_field.leaf_axes`, rosettes), else the
+    `geometric_median` of the plant;
   - otherwise the `tree_median`: Σ geodesic distance to the leaf tips minus leaf-axis votes.
 """
 

@@ -339,7 +339,7 @@ def test_python_warnings_and_tracebacks_go_to_the_log_topic(tmp_path, robot, cam
 
     path = tmp_path / "run.mcap"
     lg = logging.getLogger("capm_field.test_runlog_handler")
-    lg.propagate = False
+    lg.propagate = False  # this test's records go to the handler only
     with RunLog(path, robot, camera, bench=True) as log:
         h = RunLogHandler(log, lambda: T0)
         lg.addHandler(h)
@@ -352,6 +352,7 @@ def test_python_warnings_and_tracebacks_go_to_the_log_topic(tmp_path, robot, cam
                 lg.exception("detector failed")
         finally:
             lg.removeHandler(h)
+            lg.propagate = True
     _, msgs = read_all(path)
     lines = [(m[3].name, m[3].level, m[3].message) for m in msgs["/log"] if m[3].name == lg.name]
     assert [(lv, t.splitlines()[0]) for _, lv, t in lines] == [(3, "zenoh session body lost"), (4, "detector failed")]
