@@ -9,6 +9,7 @@ columns x,y,r[,id] or GeoJSON Points with a `radius`/`r` property, field-frame m
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from pathlib import Path
@@ -142,8 +143,13 @@ def _line_map(text: str, duplicates: list[str] | None = None) -> dict[tuple, int
     one mapping (YAML would silently keep the last) are appended to `duplicates`."""
     out: dict[tuple, int] = {}
 
+    seen_nodes: set[int] = set()
+
     def walk(node, path: tuple) -> None:
         out[path] = node.start_mark.line + 1
+        if id(node) in seen_nodes:  # an alias: its lines were mapped where it was anchored
+            return
+        seen_nodes.add(id(node))
         if isinstance(node, yaml.MappingNode):
             seen: dict = {}
             for k, v in node.value:
@@ -160,8 +166,43 @@ def _line_map(text: str, duplicates: list[str] | None = None) -> dict[tuple, int
 
     root = yaml.compose(text, Loader=yaml.SafeLoader)
     if root is not None:
+        _check_expansion(root)
         walk(root, ())
     return out
+
+
+MAX_NODES = 1_000_000  # YAML nodes after aliases are expanded (a mission of 10⁵ TROIs has ~6·10⁵)
+
+
+class _Expansion(ValueError):
+    pass
+
+
+def _check_expansion(root) -> None:
+    """Refuse an alias that contains itself and alias "bombs" (a few lines that expand to
+    billions of nodes, which validation would then walk): count the nodes aliases expand to."""
+    size: dict[int, int] = {}
+    open_: set[int] = set()
+
+    def count(node) -> int:
+        k = id(node)
+        if k in size:
+            return size[k]
+        if k in open_:
+            raise _Expansion(f"line {node.start_mark.line + 1}: a YAML alias refers to a node that contains it")
+        open_.add(k)
+        kids = [x for kv in node.value for x in kv] if isinstance(node, yaml.MappingNode) else \
+            node.value if isinstance(node, yaml.SequenceNode) else []
+        n = 1
+        for c in kids:
+            n += count(c)
+            if n > MAX_NODES:
+                raise _Expansion(f"line {node.start_mark.line + 1}: YAML aliases expand to more than {MAX_NODES} nodes")
+        open_.discard(k)
+        size[k] = n
+        return n
+
+    count(root)
 
 
 def _line_for(lines: dict[tuple, int], loc: tuple) -> int | None:
@@ -184,8 +225,12 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
         raise MissionError([f"{path}: cannot read: {e}"]) from e
     dups: list[str] = []
     try:
+        lines = _line_map(text, dups)  # first: it refuses self-referring and exploding aliases
         data = yaml.safe_load(text)
-        lines = _line_map(text, dups)
+    except _Expansion as e:
+        raise MissionError([f"{path}: {e}"]) from e
+    except RecursionError as e:  # PyYAML composes nested nodes recursively
+        raise MissionError([f"{path}: the YAML is nested too deeply to be a mission file"]) from e
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else str(path)
@@ -232,9 +277,18 @@ def load_prescan(src: Path) -> list[TROI]:
         raise MissionError([f"{src}: prescan file not found"])
     problems: list[str] = []
     out: list[TROI] = []
-    if src.suffix.lower() == ".csv":
-        with src.open(newline="") as f:
-            rows = list(csv.DictReader(f))
+    suffix = src.suffix.lower()
+    if suffix not in (".csv", ".geojson", ".json"):
+        raise MissionError([f"{src}: prescan must be .csv or .geojson"])
+    try:
+        text = src.read_text(encoding="utf-8-sig")  # a spreadsheet's CSV may start with a BOM
+    except (OSError, UnicodeDecodeError) as e:
+        raise MissionError([f"{src}: cannot read the prescan file: {e}"]) from e
+    if suffix == ".csv":
+        try:
+            rows = list(csv.DictReader(io.StringIO(text, newline="")))
+        except csv.Error as e:
+            raise MissionError([f"{src}: not a readable CSV file: {e}"]) from e
         for i, row in enumerate(rows, start=2):
             try:
                 x, y, r = float(row["x"]), float(row["y"]), float(row["r"])
@@ -242,30 +296,39 @@ def load_prescan(src: Path) -> list[TROI]:
                 problems.append(f"{src}:{i}: need numeric columns x, y, r (got {row})")
                 continue
             out.append(_checked_troi(src, i, x, y, r, row.get("id") or f"T{len(out):02d}", problems))
-    elif src.suffix.lower() in (".geojson", ".json"):
+    else:
         try:
-            doc = json.loads(src.read_text())
+            doc = json.loads(text)
         except json.JSONDecodeError as e:
             raise MissionError([f"{src}:{e.lineno}: invalid JSON: {e.msg}"]) from e
+        except RecursionError as e:
+            raise MissionError([f"{src}: the JSON is nested too deeply to be a prescan file"]) from e
         feats = doc.get("features") if isinstance(doc, dict) else None
         if not isinstance(feats, list):
             raise MissionError([f"{src}: expected a GeoJSON FeatureCollection"])
         for i, f in enumerate(feats):
-            geom, props = (f or {}).get("geometry") or {}, (f or {}).get("properties") or {}
-            if geom.get("type") != "Point" or len(geom.get("coordinates", [])) < 2:
-                problems.append(f"{src}: features[{i}]: need a Point geometry")
+            geom = f.get("geometry") if isinstance(f, dict) else None
+            props = f.get("properties") if isinstance(f, dict) else None
+            geom = geom if isinstance(geom, dict) else {}
+            props = props if isinstance(props, dict) else {}
+            coords = geom.get("coordinates")
+            if geom.get("type") != "Point" or not isinstance(coords, list) or len(coords) < 2 \
+                    or not all(_is_number(c) for c in coords[:2]):
+                problems.append(f"{src}: features[{i}]: need a Point geometry with numeric coordinates")
                 continue
             r = props.get("radius", props.get("r"))
-            if not isinstance(r, (int, float)):
+            if not _is_number(r):
                 problems.append(f"{src}: features[{i}].properties: need a numeric radius (or r)")
                 continue
-            x, y = (float(c) for c in geom["coordinates"][:2])
+            x, y = (float(c) for c in coords[:2])
             out.append(_checked_troi(src, None, x, y, float(r), str(props.get("id", f"T{len(out):02d}")), problems, f"features[{i}]"))
-    else:
-        raise MissionError([f"{src}: prescan must be .csv or .geojson"])
     if problems:
         raise MissionError(problems)
     return out
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 def _checked_troi(src: Path, line: int | None, x: float, y: float, r: float, tid: str, problems: list[str], where: str = "") -> TROI:

@@ -132,3 +132,42 @@ def test_duplicate_keys_and_non_finite_numbers_are_errors(tmp_path):
     assert ":6: start: key given twice (first on line 4)" in msg
     assert "field.trois.0.x: Input should be a finite number" in msg
     assert "task.gamma: Input should be a finite number" in msg
+
+
+def test_hostile_yaml_is_refused_with_a_clear_error(tmp_path):
+    """Deep nesting, an alias inside itself and an alias "bomb" (9 lines → 10⁹ nodes) are
+    MissionErrors, not RecursionError tracebacks or a hang; anchors used normally still load."""
+    bomb = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    bomb += [f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 10) + "]" for k in range(1, 10)]
+    for text, expect in (
+        ("a: " + "[" * 5000 + "\n", "nested too deeply"),
+        ("&a [*a]\n", "alias refers to a node that contains it"),
+        ("\n".join(bomb) + "\n", "expand to more than"),
+    ):
+        with pytest.raises(MissionError) as ei:
+            load_mission(_write(tmp_path, text))
+        assert expect in str(ei.value)
+    shared = GOOD.replace("- {x: 1.0, y: 2.0, r: 0.2}", "- &t {x: 1.0, y: 2.0, r: 0.2}\n    - *t")
+    _, trois = load_mission(_write(tmp_path, shared))
+    assert [(t.x, t.y, t.r) for t in trois] == [(1.0, 2.0, 0.2)] * 2
+
+
+def test_malformed_prescan_files_are_reported_per_feature(tmp_path):
+    m = GOOD.replace("  trois:\n    - {x: 1.0, y: 2.0, r: 0.2}\n", "  prescan: p.geojson\n")
+    point = {"type": "Point", "coordinates": [1, 2]}
+    feats = [1, None, {"geometry": {"type": "Point", "coordinates": "ab"}},
+             {"geometry": point, "properties": {"r": True}}, {"geometry": {"type": "Point", "coordinates": ["1", 2]}, "properties": {"r": 0.2}},
+             {"geometry": point, "properties": {"r": 0.2, "id": "ok"}}]
+    (tmp_path / "p.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    with pytest.raises(MissionError) as ei:
+        load_mission(_write(tmp_path, m))
+    assert len(ei.value.problems) == 5 and "features[3].properties: need a numeric radius" in str(ei.value)
+    (tmp_path / "p.geojson").write_text("[" * 100000)
+    with pytest.raises(MissionError, match="nested too deeply"):
+        load_mission(_write(tmp_path, m))
+    (tmp_path / "p.csv").write_bytes(b"\xff\xfe\x00x")
+    with pytest.raises(MissionError, match="cannot read the prescan file"):
+        load_mission(_write(tmp_path, m.replace("p.geojson", "p.csv")))
+    (tmp_path / "p.csv").write_text("\ufeffx,y,r,id\n1,2,0.2,A\n", encoding="utf-8")  # spreadsheet export
+    _, trois = load_mission(_write(tmp_path, m.replace("p.geojson", "p.csv")))
+    assert trois == [TROI(1.0, 2.0, 0.2, "A")]
