@@ -250,7 +250,7 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
     rec.save(str(out), default_blueprint=blueprint())
     with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
         source = mcap
-        if not data.report.complete:
+        if not data.report.complete or data.report.bad_chunks:
             # A crash file: Rerun's own recovery (recover=True) drops channels whose message index
             # was torn, so hand it a finalised copy of exactly what our streaming reader read.
             source = Path(tmp) / "salvaged.mcap"
@@ -316,6 +316,8 @@ def main(argv: list[str] | None = None) -> int:
     data = load_run(mcap)
     if data.report.error:
         print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {data.report.error}", file=sys.stderr)
+    if data.report.bad_chunks:
+        print(f"capm-field review: note: {mcap} is damaged: {data.report.damage_note()}", file=sys.stderr)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
         print(f"wrote {args.rrd} ({data.report.messages} messages)")

@@ -2,7 +2,8 @@
 
 A streaming read (`mcap.stream_reader.StreamReader`, what `NonSeekingReader` uses, in file
 order) needs no summary: it returns every message of every complete chunk and stops at the
-first incomplete record. Chunk CRCs are validated. Protobuf messages (ours and Foxglove's) are
+first incomplete record. Chunk CRCs are validated: a chunk that fails (a bad sector of the
+robot's disk) is skipped and counted, and the chunks after it are still read. Protobuf messages (ours and Foxglove's) are
 decoded from their embedded schemas with mcap-protobuf-support; /robot_description (ROS 2
 String, cdr) is decoded here. `salvage` copies the readable part into a finalised file.
 """
@@ -15,8 +16,9 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
-from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -38,6 +40,16 @@ class ReadReport:
     messages: int = 0
     complete: bool = False  # the file ended with a footer (closed cleanly)
     error: str | None = None  # why reading stopped early (a crash-truncated tail)
+    bad_chunks: int = 0  # chunks skipped because their CRC or compression was damaged
+    orphans: int = 0  # messages skipped because their channel was defined in a skipped chunk
+    damage: str | None = None  # the first skipped chunk's problem
+
+    def damage_note(self) -> str | None:
+        """One line on what was skipped in the middle of the file, or None."""
+        if not self.bad_chunks:
+            return None
+        return (f"{self.bad_chunks} damaged chunk(s) skipped ({self.damage}); "
+                f"{self.orphans} later message(s) on channels defined there skipped too")
 
 
 def decode_cdr_string(data: bytes) -> str:
@@ -62,7 +74,9 @@ def check_mcap(path: str | Path) -> Path:
 def _iter_records(path: Path, report: ReadReport) -> Iterator[Schema | Channel | Message | Metadata]:
     """Schema, Channel, Message and Metadata records in file order, up to a torn tail."""
     with path.open("rb") as f:
-        records = StreamReader(f, validate_crcs=True).records
+        # chunks are broken up here, each on its own, so one damaged chunk does not end the read
+        # (the data-section CRC over all of them is then not checked: the chunk CRCs cover it)
+        records = StreamReader(f, emit_chunks=True).records
         while True:
             try:
                 rec = next(records)
@@ -79,13 +93,34 @@ def _iter_records(path: Path, report: ReadReport) -> Iterator[Schema | Channel |
             except Exception as e:  # noqa: BLE001 - torn record, bad CRC, zstd error: a crash's tail
                 report.error = f"{type(e).__name__}: {e}"
                 return
-            if isinstance(rec, (Schema, Channel, Message, Metadata)):
+            if isinstance(rec, Chunk):
+                try:
+                    inner = breakup_chunk(rec, validate_crc=True)
+                except Exception as e:  # noqa: BLE001 - bad CRC, corrupt zstd/lz4, torn inner record
+                    report.bad_chunks += 1
+                    report.damage = report.damage or f"{type(e).__name__}: {e}"
+                    continue
+                yield from (r for r in inner if isinstance(r, (Schema, Channel, Message, Metadata)))
+            elif isinstance(rec, (Schema, Channel, Message, Metadata)):
                 yield rec
 
 
+def _summary_tables(path: Path) -> tuple[dict[int, Schema], dict[int, Channel]]:
+    """Schemas and channels from the summary section of a cleanly closed file (empty for a
+    crash file): they repeat the records inside the chunks, so messages of a channel whose
+    record sat in a damaged chunk can still be decoded."""
+    try:
+        with path.open("rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception:  # noqa: BLE001 - no footer or a damaged summary: the chunks' records only
+        return {}, {}
+    if summary is None:
+        return {}, {}
+    return dict(summary.schemas), dict(summary.channels)
+
+
 def _iter_raw(path: Path, topics: set[str] | None, report: ReadReport) -> Iterator[tuple[Schema | None, Channel, Message]]:
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
+    schemas, channels = _summary_tables(path)
     for rec in _iter_records(path, report):
         if isinstance(rec, Schema):
             schemas[rec.id] = rec
@@ -93,9 +128,9 @@ def _iter_raw(path: Path, topics: set[str] | None, report: ReadReport) -> Iterat
             channels[rec.id] = rec
         elif isinstance(rec, Message):
             ch = channels.get(rec.channel_id)
-            if ch is None:
-                report.error = f"message on unknown channel {rec.channel_id}"
-                return
+            if ch is None:  # its Channel record was in a damaged chunk
+                report.orphans += 1
+                continue
             if topics is None or ch.topic in topics:
                 yield schemas.get(ch.schema_id), ch, rec
 
@@ -131,8 +166,7 @@ def salvage(src: str | Path, dst: str | Path) -> ReadReport:
         w.start(profile="", library="capm-field salvage")
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, int] = {}
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
+        schemas, channels = _summary_tables(p)
         for rec in _iter_records(p, report):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
@@ -140,7 +174,9 @@ def salvage(src: str | Path, dst: str | Path) -> ReadReport:
                 channels[rec.id] = rec
             elif isinstance(rec, Metadata):
                 w.add_metadata(rec.name, dict(rec.metadata))
-            elif isinstance(rec, Message) and rec.channel_id in channels:
+            elif isinstance(rec, Message) and rec.channel_id not in channels:
+                report.orphans += 1
+            elif isinstance(rec, Message):
                 if rec.channel_id not in channel_ids:
                     ch = channels[rec.channel_id]
                     sid = 0

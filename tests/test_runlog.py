@@ -20,6 +20,8 @@ import cv2
 import numpy as np
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel, Chunk, Message
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap_protobuf.decoder import DecoderFactory
 from scipy.spatial.transform import Rotation
 
@@ -357,3 +359,35 @@ def test_python_warnings_and_tracebacks_go_to_the_log_topic(tmp_path, robot, cam
     lines = [(m[3].name, m[3].level, m[3].message) for m in msgs["/log"] if m[3].name == lg.name]
     assert [(lv, t.splitlines()[0]) for _, lv, t in lines] == [(3, "zenoh session body lost"), (4, "detector failed")]
     assert "RuntimeError: bug in stage 2" in lines[1][2] and "Traceback" in lines[1][2]
+
+
+def test_a_damaged_chunk_is_skipped_and_the_rest_is_read(tmp_path, robot, camera):
+    """One flipped byte (a bad sector) in the chunk that holds the /tf Channel record: that chunk's messages are lost, every other chunk's are read (the channel from the
+    summary), the damage is reported, and salvage() copies the rest into a clean file."""
+    path = tmp_path / "run.mcap"
+    with RunLog(path, robot, camera, bench=True, chunk_size=4096) as log:
+        for i in range(300):
+            log.transforms(T0 + i * 1_000_000, SE2(0.01 * i, 0, 0), np.full(6, 0.001 * i))
+    clean = [m.log_time for m in iter_run(path, topics={"/tf"})]
+    with path.open("rb") as f:
+        chunks = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    with path.open("rb") as f:  # what each chunk holds, from the clean file (same order)
+        inner = [breakup_chunk(r) for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+    assert len(chunks) == len(inner) >= 4
+    k = next(i for i, recs in enumerate(inner) if any(isinstance(r, Channel) and r.topic == "/tf" for r in recs))
+    tf_id = next(r.id for r in inner[k] if isinstance(r, Channel) and r.topic == "/tf")
+    lost = {r.log_time for r in inner[k] if isinstance(r, Message) and r.channel_id == tf_id}
+    data = bytearray(path.read_bytes())
+    data[chunks[k].chunk_start_offset + chunks[k].chunk_length - 20] ^= 0xFF  # inside its compressed records
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+
+    report = ReadReport()
+    got = [m.log_time for m in iter_run(bad, topics={"/tf"}, report=report)]
+    assert report.bad_chunks == 1 and report.complete and report.error is None
+    assert "1 damaged chunk" in report.damage_note()
+    assert got == [t for t in clean if t not in lost] and 0 < len(lost) < len(clean) / 2
+    fixed = tmp_path / "fixed.mcap"
+    assert salvage(bad, fixed).messages == sum(1 for _ in iter_run(bad))
+    summary, msgs = read_all(fixed)
+    assert [m[0] for m in msgs["/tf"]] == got
