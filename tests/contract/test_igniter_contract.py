@@ -43,8 +43,18 @@ def rig(request):
         rs.faults.bus_off = True
         time.sleep(0.45)  # > heartbeat consumer timeout
 
+    def settle() -> None:
+        # two fresh IGN_STATUS frames (20 ms period) after the commands: a fixed sleep failed
+        # under load (the status read still said armed after 30 ms)
+        seen, last = 0, bench.igniter.state().stamp_ns
+        deadline = time.monotonic() + 1.0
+        while seen < 2 and time.monotonic() < deadline:
+            time.sleep(0.005)
+            stamp = bench.igniter.state().stamp_ns
+            seen, last = seen + (stamp != last), stamp
+
     try:
-        yield Rig(bench.igniter, rs.board, time.monotonic, lose, lambda: time.sleep(0.03))
+        yield Rig(bench.igniter, rs.board, time.monotonic, lose, settle)
     finally:
         bench.close()
 
