@@ -687,6 +687,7 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
         g_p90=g90,
         gsig=(g90 - soil) / sig,
         gb=float(np.median((pc[:, 1] - pc[:, 0]) / (pc.sum(1) + 30))),
+        gr=float(np.median((pc[:, 1] - pc[:, 2]) / (pc.sum(1) + 30))),
         sat=float(np.median((mx - mn) / (mx + 1))),
         mass=float(np.sum(v - soil)),
         d=math.hypot(xs.mean() - cen[0], ys.mean() - cen[1]) / rad,
@@ -714,7 +715,16 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     # with gb ≥ 0.10, or ≥ 12 σ with the base gb (dark olive grass on dark soil: G* p90 0.015
     # at 15 σ, gb 0.096 — demo seed 8)
     strong = f["gsig"] >= 5 and f["gb"] >= 0.10 or f["gsig"] >= STRONG_SIGMA
-    return f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or strong)
+    if f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or strong):
+        return True
+    # blue-green (glaucous) leaves: green barely above blue (gb < 0.07) but far above red,
+    # further than any soil, stone or straw of the bench (gr ≤ 0.07 on its bare-soil frames)
+    return not vivid and f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 \
+        and (f["gr"] >= TEAL_GR or f["gr"] >= TEAL_GR_WEAK and f["g_p90"] >= 0.04)
+
+
+TEAL_GB, TEAL_SAT = 0.01, 0.25
+TEAL_GR, TEAL_GR_WEAK = 0.12, 0.08  # gr = median (G − R)/(R + G + B + 30) after white balance
 
 
 GROUP_GAP = 0.35  # × the group's diameter: largest gap a component may be joined across

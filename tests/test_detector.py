@@ -589,3 +589,26 @@ def test_clover_with_unseen_stalks_centre_where_trefoils_point_away() -> None:
         det = detect_centre(cv2.GaussianBlur(img, (0, 0), 1.0))
         errs.append(math.inf if det.pixel is None else math.hypot(det.pixel[0] - c[0], det.pixel[1] - c[1]) / R)
     assert sum(e < 0.1 for e in errs) >= 9, np.round(errs, 3)
+
+
+def test_blue_green_leaves_are_plants() -> None:
+    """Glaucous, blue-green leaves (RGB ≈ 56, 112, 94: green far above red, barely above blue)
+    on red, sandy, brown and grey soils are found (the green-over-blue test alone said
+    "no_plant" for 11 of 17 such plants in bench/other_renderer_plants.py); blue-grey stones
+    on the same soils stay "no_plant"."""
+    rng = np.random.default_rng(4)
+    soils = ((60, 85, 140), (125, 165, 190), (62, 88, 118), (102, 108, 112))  # BGR
+    found = 0
+    for k in range(8):
+        img = _soil(rng, (720, 1280), colour=soils[k % 4])
+        c = np.array([rng.uniform(450, 830), rng.uniform(250, 470)])
+        col = np.array([94, 112, 56]) * rng.uniform(0.8, 1.2)
+        _lens_rosette(img, rng, c, rng.uniform(50, 120), tuple(col.tolist()))
+        det = detect_centre(cv2.GaussianBlur(img, (0, 0), 1.0))
+        found += det.reason is None and math.hypot(det.pixel[0] - c[0], det.pixel[1] - c[1]) < 30
+        stones = _soil(rng, (720, 1280), colour=soils[k % 4])
+        for _ in range(6):
+            p = (int(rng.uniform(300, 980)), int(rng.uniform(150, 570)))
+            cv2.circle(stones, p, int(rng.uniform(8, 25)), (150, 140, 120), -1, cv2.LINE_AA)  # blue-grey
+        assert detect_centre(cv2.GaussianBlur(stones, (0, 0), 1.0)).reason == "no_plant"
+    assert found >= 7, found
