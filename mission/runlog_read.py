@@ -3,9 +3,10 @@
 A streaming read (`mcap.stream_reader.StreamReader`, what `NonSeekingReader` uses, in file
 order) needs no summary: it returns every message of every complete chunk and stops at the
 first incomplete record. Chunk CRCs are validated: a chunk that fails (a bad sector of the
-robot's disk) is skipped and counted, and the chunks after it are still read. Protobuf messages (ours and Foxglove's) are
-decoded from their embedded schemas with mcap-protobuf-support; /robot_description (ROS 2
-String, cdr) is decoded here. `salvage` copies the readable part into a finalised file.
+robot's disk) is skipped and counted, and the chunks after it are still read. Protobuf
+messages (ours and Foxglove's) are decoded from their embedded schemas with
+mcap-protobuf-support; /robot_description (ROS 2 String, cdr) is decoded here. `salvage`
+copies the readable part into a finalised file.
 """
 
 from __future__ import annotations
