@@ -28,6 +28,19 @@ from .config import load_mission
 from .ordering import order_trois, x_kmax
 
 
+def _read_summary(p: Path) -> tuple[dict, dict]:
+    """A run's summary.json and its flamed targets by id (checked before the bench runs)."""
+    if not p.is_file():
+        raise UserError(f"--summary: file not found: {p}")
+    try:
+        s = json.loads(p.read_text())
+        flamed = {t["id"]: t for t in s["targets"] if t["flamed"]}
+        float(s["success_rate"])
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as e:
+        raise UserError(f"--summary: {p} is not a capm-field run's summary.json ({type(e).__name__}: {e})") from e
+    return s, flamed
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="capm-field bench-mission", description=__doc__.split("\n")[0])
     ap.add_argument("mission")
@@ -39,6 +52,7 @@ def main(argv: list[str]) -> int:
     if a.trials < 2:
         raise UserError(f"--trials must be ≥ 2, got {a.trials}")
     mission, trois = load_mission(a.mission)
+    s, flamed = _read_summary(Path(a.summary)) if a.summary else (None, {})
     robot = RobotModel(mission.robot)
     core = PlanningCore(robot, get_maps(robot, mission.task, ReachabilityConfig()), mission.task)
     ordered = order_trois(trois, mission.start.se2().xy, mission.end_pose().xy)
@@ -73,11 +87,6 @@ def main(argv: list[str]) -> int:
     print(f"bench: energy per weed {mean_e:.3f} (a single run's mean has s.e. {se_run:.3f}), success {succ * 100:.1f}%")
     result = {"planner": mission.planner, "targets": rows, "energy_per_weed": mean_e, "run_mean_se": se_run, "success_rate": succ}
     if a.summary:
-        p = Path(a.summary)
-        if not p.is_file():
-            raise UserError(f"--summary: file not found: {p}")
-        s = json.loads(p.read_text())
-        flamed = {t["id"]: t for t in s["targets"] if t["flamed"]}
         same = [r for r in rows if r["id"] in flamed]  # compare like with like: the targets the run flamed
         if not same:
             raise UserError("--summary: the run flamed no target; nothing to compare")
@@ -98,3 +107,4 @@ def main(argv: list[str]) -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main(sys.argv[1:]))
+

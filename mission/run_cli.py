@@ -107,12 +107,18 @@ def main(argv: list[str]) -> int:
     planner = make_planner(mission.planner, core, seed=mission.drivers.seed if mission.drivers.kind == "bench" else 0)
     from drivers.interfaces import DriverError
 
+    made = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--out: cannot create the output directory {out}: {e.strerror or e} (nothing was started)") from e
     try:
         drivers = _open_drivers(mission, robot, trois, a.seed, Path(a.mission).resolve().parent)
     except DriverError as e:
+        if made and not any(out.iterdir()):
+            out.rmdir()  # leave nothing behind for a run that never started
         print(f"capm-field run: cannot open the drivers: {type(e).__name__}: {e} (nothing started)", file=sys.stderr)
         return 1
-    out.mkdir(parents=True, exist_ok=True)
     world = drivers.extras.get("world")
     truth = world.truth if world is not None else {}
     if world is not None and not getattr(world.clock, "realtime", False):

@@ -171,3 +171,18 @@ def test_malformed_prescan_files_are_reported_per_feature(tmp_path):
     (tmp_path / "p.csv").write_text("\ufeffx,y,r,id\n1,2,0.2,A\n", encoding="utf-8")  # spreadsheet export
     _, trois = load_mission(_write(tmp_path, m.replace("p.geojson", "p.csv")))
     assert trois == [TROI(1.0, 2.0, 0.2, "A")]
+
+
+def test_unusable_output_paths_and_summaries_are_clear_errors(tmp_path):
+    """`run --out` that cannot be created and `bench-mission --summary` that is not a summary
+    end with exit 2 and one line, not a traceback (the summary is checked before the bench)."""
+    p = _write(tmp_path, GOOD)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    r = subprocess.run(CLI + ["run", str(p), "--out", str(blocker / "sub"), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2 and "cannot create the output directory" in r.stderr and "Traceback" not in r.stderr
+    for content in (b"\xff\xfe", b'{"targets": 5}', b"[]"):
+        (tmp_path / "s.json").write_bytes(content)
+        r = subprocess.run(CLI + ["bench-mission", str(p), "--summary", str(tmp_path / "s.json")], capture_output=True, text=True)
+        assert r.returncode == 2 and "is not a capm-field run's summary.json" in r.stderr and "Traceback" not in r.stderr
+        assert "bench: energy" not in r.stdout
