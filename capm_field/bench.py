@@ -26,7 +26,7 @@ import numpy as np
 
 from . import cli_args
 from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
-from .errors import UserError
+from .errors import UserError, check_output, write_output
 from .geometry import SE2
 from .keystates import TROI
 from .planners import ALL_PLANNERS, PLANNERS, PlannerOptions, PlanningCore, make_planner
@@ -230,6 +230,7 @@ def _core_for(task: TaskConfig, progress: bool, urdf: str | None = None) -> Plan
 
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
+    check_output(a.json, "--json")
     if a.trials < 1:
         raise UserError(f"--trials must be ≥ 1, got {a.trials}")
     if a.gamma < 0:
@@ -267,8 +268,7 @@ def main(argv: list[str]) -> int:
     print(format_table(res, spec))
     print(f"cost RMSE vs paper: {res['rmse_vs_paper']:.3f}   wall: {wall:.1f} s ({spec.trials} TROIs × {len(lengths)} lengths × {len(planners)} planners)")
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump(res, f, indent=1)
+        write_output(a.json, json.dumps(res, indent=1), "--json")
     return 0
 
 
@@ -297,6 +297,5 @@ def _readings(spec: BenchSpec, opts: PlannerOptions, workers: int, json_path: st
                     eta = " ".join(f"{e:.3f}" for e in row["eta_bc"])
                     print(f"{distance:<9} γ={gamma:<3} Σ as {sigma:<8} span {span:<8} RMSE {row['rmse']:6.3f}  a-success {row['success_a']*100:5.1f}%  η_bc {eta}")
     if json_path:
-        with open(json_path, "w") as f:
-            json.dump({"readings": out}, f, indent=1)
+        write_output(json_path, json.dumps({"readings": out}, indent=1), "--json")
     return 0

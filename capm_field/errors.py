@@ -3,3 +3,30 @@
 
 class UserError(Exception):
     """A bad input (file, value, option) — reported as one clear line naming the value, exit 2."""
+
+
+def check_output(path: str | None, option: str) -> None:
+    """Fail fast (before a long bench) if `path` cannot be an output file: its directory must
+    exist and be writable, and it must not be a directory itself. None: nothing to check."""
+    import os
+    from pathlib import Path
+
+    if not path:
+        return
+    p = Path(path)
+    parent = p.parent
+    if p.is_dir():
+        raise UserError(f"{option} {path}: is a directory, not a file")
+    if not parent.is_dir():
+        raise UserError(f"{option} {path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UserError(f"{option} {path}: directory {parent} is not writable")
+
+
+def write_output(path: str, text: str, option: str) -> None:
+    """Write `text` to `path`; an OS error is a UserError naming the option and the reason."""
+    try:
+        with open(path, "w") as f:
+            f.write(text)
+    except OSError as e:
+        raise UserError(f"cannot write {option} {path!r}: {e.strerror or e}") from None

@@ -27,7 +27,7 @@ import numpy as np
 from . import bench as table_bench
 from . import cli_args
 from .config import TaskConfig, build
-from .errors import UserError
+from .errors import UserError, check_output, write_output
 from .field_planner import FieldOptions
 from .field_sim import FieldRun, run_planner
 from .geometry import SE2
@@ -200,6 +200,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
+    check_output(a.json, "--json")
     if a.fields < 1 or a.troi < 1:
         raise UserError("--fields and --troi must be ≥ 1")
     planners = cli_args.names(a.planners, PLANNERS, "--planners")
@@ -231,7 +232,6 @@ def main(argv: list[str]) -> int:
         )
     print(f"wall {wall:.1f} s ({a.fields} fields × {len(densities)} densities × K = {a.troi}, prior {a.prior}, seed {a.seed})")
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"results": results, "plan_latency_ms": lat, "seed": a.seed, "prior": a.prior, "troi_per_field": a.troi, "wall_s": wall,
-                       "reading": {"gamma": a.gamma, "distance": a.distance, "sigma": a.sigma}}, f, indent=1)
+        write_output(a.json, json.dumps({"results": results, "plan_latency_ms": lat, "seed": a.seed, "prior": a.prior, "troi_per_field": a.troi,
+                                         "wall_s": wall, "reading": {"gamma": a.gamma, "distance": a.distance, "sigma": a.sigma}}, indent=1), "--json")
     return 0

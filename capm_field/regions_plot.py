@@ -14,7 +14,7 @@ import sys
 import numpy as np
 
 from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
-from .errors import UserError
+from .errors import UserError, check_output
 from .reachability import get_maps, problem_type
 from .robot_model import RobotModel
 
@@ -34,6 +34,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
+    check_output(a.out, "--out")
     if a.radius <= 0:
         raise UserError(f"--radius must be positive, got {a.radius}")
     if not a.out.lower().endswith(".png"):
@@ -85,7 +86,10 @@ def main(argv: list[str]) -> int:
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     fig.tight_layout()
-    fig.savefig(a.out)
+    try:
+        fig.savefig(a.out)
+    except OSError as e:
+        raise UserError(f"cannot write --out {a.out!r}: {e.strerror or e}") from None
     plt.close(fig)
     area = a.resolution**2
     print(f"R_o(r_w={a.radius}): {_fmt(ro)}   R_m: {_fmt(rm)}   type {kind}")

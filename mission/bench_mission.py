@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from capm_field.config import ReachabilityConfig
-from capm_field.errors import UserError
+from capm_field.errors import UserError, check_output, write_output
 from capm_field.planners import PlanningCore, make_planner
 from capm_field.reachability import get_maps
 from capm_field.robot_model import RobotModel
@@ -49,6 +49,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--summary", help="a run's summary.json to compare against")
     ap.add_argument("--json", metavar="FILE")
     a = ap.parse_args(argv)
+    check_output(a.json, "--json")
     if a.trials < 2:
         raise UserError(f"--trials must be ≥ 2, got {a.trials}")
     mission, trois = load_mission(a.mission)
@@ -101,7 +102,7 @@ def main(argv: list[str]) -> int:
         )
         result.update({"run_energy_per_weed": run_e, "z": z, "run_success_rate": s["success_rate"]})
     if a.json:
-        Path(a.json).write_text(json.dumps(result, indent=1))
+        write_output(a.json, json.dumps(result, indent=1), "--json")
     return 0
 
 

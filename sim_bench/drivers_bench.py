@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capm_field.errors import UserError
+from capm_field.errors import UserError, check_output, write_output
 from drivers.can.codec import IGN_ARM, IGN_EXTINGUISH, IGN_IGNITE
 
 from .can_rig import CanBench, RawHost
@@ -170,8 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cutoff-trials", type=int, default=10, help="igniter cutoff trials (default 10)")
     a = p.parse_args(argv)
     out_path = Path(a.json)
-    if out_path.parent and not out_path.parent.exists():
-        raise UserError(f"--json: directory {out_path.parent} does not exist")
+    check_output(a.json, "--json")
     if a.cutoff_trials < 1:
         raise UserError("--cutoff-trials must be >= 1")
 
@@ -197,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     res["igniter_cutoff"] = cut
     res["can_link_loss_detect_ms"] = measure_can_link_loss()
 
-    out_path.write_text(json.dumps(res, indent=2) + "\n")
+    write_output(a.json, json.dumps(res, indent=2) + "\n", "--json")
     z = res["zenoh_cmd_rtt_ms"]
     if z:
         print(f"zenoh cmd rtt: median {z['median']} ms, p99 {z['p99']} ms")

@@ -22,7 +22,7 @@ import numpy as np
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
 from capm_field.detector import detect_centre, ground_centre, roi_from_troi
-from capm_field.errors import UserError
+from capm_field.errors import UserError, check_output, write_output
 
 from .field_scene import FieldScene
 from .plants import WEED_KINDS
@@ -199,6 +199,7 @@ def main(argv: list[str]) -> int:
         if e.code == 0:
             return 0
         raise UserError("invalid arguments (see capm-field bench-perception --help)") from None
+    check_output(a.json, "--json")
     if a.scenes < 1:
         raise UserError(f"--scenes must be at least 1, got {a.scenes}")
     if not 0.0 <= a.bare_share <= 1.0:
@@ -215,9 +216,5 @@ def main(argv: list[str]) -> int:
     for k, v in r["per_kind"].items():
         print(f"  {k:<9} n {v['n']:>3}  detected {pct(v['detection_rate']):>7}  wrong {v['wrong']:>2}  error {_fmt(v['err_mm'], 'mm')}")
     if a.json:
-        try:
-            with open(a.json, "w") as f:
-                json.dump(r, f, indent=2)
-        except OSError as e:
-            raise UserError(f"cannot write --json {a.json!r}: {e.strerror}") from None
+        write_output(a.json, json.dumps(r, indent=2), "--json")
     return 0

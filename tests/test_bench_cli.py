@@ -56,6 +56,13 @@ def test_bench_cli_json(tmp_path):
         (["bench", "--urdf", "/no/such/z1.urdf"], "URDF file not found"),
         (["regions", "--radius", "-0.3"], "--radius must be positive"),
         (["frobnicate"], "unknown command"),
+        # output files that cannot be written are refused before any work (were tracebacks at the end)
+        (["bench", "--trials", "2", "--json", "/no/such/dir/b.json"], "directory /no/such/dir does not exist"),
+        (["bench-fields", "--json", "/no/such/dir/f.json"], "directory /no/such/dir does not exist"),
+        (["bench-perception", "--scenes", "1", "--json", "/no/such/dir/p.json"], "directory /no/such/dir does not exist"),
+        (["bench-drivers", "--json", "/no/such/dir/d.json"], "directory /no/such/dir does not exist"),
+        (["regions", "--out", "/no/such/dir/r.png"], "directory /no/such/dir does not exist"),
+        (["bench", "--trials", "2", "--json", "/"], "is a directory"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(args, needle):
