@@ -302,7 +302,7 @@ def _run_child(cmd: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="capm-field review", description=__doc__.splitlines()[0])
-    ap.add_argument("run", help="run log (run.mcap), also one cut short by a crash")
+    ap.add_argument("run", help="run log (run.mcap) or its run directory, also one cut short by a crash")
     ap.add_argument("--rrd", type=Path, help="write a Rerun recording to this file (headless, no viewer)")
     ap.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of the native viewer")
     ap.add_argument("--web-port", type=int, default=9090, help="HTTP port of the web viewer (default 9090)")

@@ -61,8 +61,13 @@ def decode_cdr_string(data: bytes) -> str:
 
 
 def check_mcap(path: str | Path) -> Path:
-    """The path of an existing file that starts with the MCAP magic, else UserError."""
+    """The path of an existing file that starts with the MCAP magic, else UserError. A run's
+    directory (holding run.mcap) stands for its log."""
     p = Path(path)
+    if p.is_dir() and (p / "run.mcap").is_file():
+        p = p / "run.mcap"
+    elif p.is_dir():
+        raise UserError(f"{p} is a directory without a run.mcap")
     if not p.is_file():
         raise UserError(f"run log not found: {p}")
     with p.open("rb") as f:

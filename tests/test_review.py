@@ -93,3 +93,15 @@ def test_rerun_binary_is_found():
     from mission.review import _rerun_binary
 
     assert shutil.which(_rerun_binary()) or Path(_rerun_binary()).is_file()
+
+
+def test_a_run_directory_stands_for_its_log(tmp_path, capsys):
+    """`capm-field review runs/x` opens runs/x/run.mcap; a directory without one is one line."""
+    from mission.runlog_read import check_mcap
+
+    (tmp_path / "run.mcap").write_bytes(b"\x89MCAP0\r\n")
+    assert check_mcap(tmp_path) == tmp_path / "run.mcap"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli.main(["review", str(empty), "--rrd", str(tmp_path / "x.rrd")]) == 2
+    assert "is a directory without a run.mcap" in capsys.readouterr().err
