@@ -188,7 +188,7 @@ class RobotModel:
         bc = self.cfg.body
         d = b - a
         dz = d[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # subnormal dz: ±inf is right
             t1 = np.where(dz != 0, (0.0 - a[..., 2]) / dz, -np.inf)
             t2 = np.where(dz != 0, (-self.keepout_depth - a[..., 2]) / dz, np.inf)
         flat_inside = (dz == 0) & (a[..., 2] < 0.0) & (a[..., 2] > -self.keepout_depth)
@@ -197,7 +197,7 @@ class RobotModel:
         dxy = d[..., :2]
         axy = a[..., :2]
         n2 = np.einsum("...i,...i->...", dxy, dxy)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             ts = np.where(n2 > 0, -np.einsum("...i,...i->...", axy, dxy) / n2, tlo)
         ts = np.clip(ts, tlo, np.maximum(tlo, thi))
         closest = axy + ts[..., None] * dxy
