@@ -666,7 +666,8 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
     g_p90: 90th percentile of the index (absolute), gsig: the same above the soil level in soil σ,
     gb: median (G − B)/(R + G + B + 30) after the soil white balance (leaves reflect far more
     green than blue; grey stones turned cyan-green by the white balance and straw do not),
-    sat: median saturation after white balance, mass: Σ (index − soil), d: distance of the
+    gr: the same with G − R (blue-green leaves, whose gb is low), sat: median saturation after
+    white balance, mass: Σ (index − soil), d: distance of the
     centroid from the ROI centre in ROI radii.
     """
     v = vi[gm]

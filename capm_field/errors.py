@@ -1,5 +1,8 @@
 """Errors a user can cause. The CLI prints them as one line and exits with code 2."""
 
+import os
+from pathlib import Path
+
 
 class UserError(Exception):
     """A bad input (file, value, option) — reported as one clear line naming the value, exit 2."""
@@ -8,9 +11,6 @@ class UserError(Exception):
 def check_output(path: str | None, option: str) -> None:
     """Fail fast (before a long bench) if `path` cannot be an output file: its directory must
     exist and be writable, and it must not be a directory itself. None: nothing to check."""
-    import os
-    from pathlib import Path
-
     if not path:
         return
     p = Path(path)
