@@ -186,3 +186,21 @@ def test_unusable_output_paths_and_summaries_are_clear_errors(tmp_path):
         r = subprocess.run(CLI + ["bench-mission", str(p), "--summary", str(tmp_path / "s.json")], capture_output=True, text=True)
         assert r.returncode == 2 and "is not a capm-field run's summary.json" in r.stderr and "Traceback" not in r.stderr
         assert "bench: energy" not in r.stdout
+
+
+def test_validate_opens_the_zenoh_config_of_a_hardware_mission(tmp_path):
+    """`validate` loads drivers.zenoh.config_file as a hardware run would: a missing file, a
+    file that is not JSON5, or a certificate it names that is not there is an error (exit 2)."""
+    text = (EXAMPLES / "hardware_template.yaml").read_text().replace("prescan: prescan.csv", "trois: [{x: 1, y: 1, r: 0.2}]")
+    p = _write(tmp_path, text)
+    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2 and "zenoh config file not found" in r.stderr
+    (tmp_path / "zenoh-client.json5").write_text("{ not json5 [[[")
+    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2 and "drivers.zenoh.config_file" in r.stderr and "Traceback" not in r.stderr
+    (tmp_path / "zenoh-client.json5").write_text((EXAMPLES / "zenoh-client.json5").read_text())
+    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2 and "names a missing file" in r.stderr and "ca.pem" in r.stderr
+    (tmp_path / "zenoh-client.json5").write_text("{}")
+    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
