@@ -139,6 +139,7 @@ def test_random_fault_schedules_keep_the_ignition_invariant(core, tmp_path_facto
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)  # 1000 missions: ~10–20 min on 2 cores, over the suite's 300 s default
 @settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1))
 def test_random_fault_schedules_slow(core, tmp_path_factory, seed):
