@@ -31,15 +31,16 @@ def validate_main(argv: list[str]) -> int:
     a = _validate_parser().parse_args(argv)
     mission, trois = load_mission(a.mission)
     kind = mission.drivers.kind
-    zcfg = getattr(getattr(mission.drivers, "zenoh", None), "config_file", None)
-    if zcfg:
+    zspec = getattr(mission.drivers, "zenoh", None)
+    if zspec is not None and zspec.config_file:
         # the files a hardware run would open first: the zenoh config and what it names (TLS
-        # certificates and keys); a bad one is found here, not at the robot
+        # certificates and keys), resolved as the run resolves them; a bad one is found here
         from drivers.body_protocol import load_config_file
+        from drivers.zenoh_body import ZenohBodyConfig
 
-        path = Path(a.mission).resolve().parent / zcfg
+        zcfg = zspec.config_file
         try:
-            load_config_file(path)
+            load_config_file(ZenohBodyConfig.from_spec(zspec, Path(a.mission).resolve().parent).link.config_file)
         except Exception as e:  # noqa: BLE001 - zenoh's parse errors are plain exceptions
             raise MissionError([f"{a.mission}: drivers.zenoh.config_file {zcfg}: {' '.join(str(e).split())[:300] or type(e).__name__}"]) from e
     print(f"{a.mission}: ok — {len(trois)} TROIs, planner {mission.planner}, drivers {kind}")
