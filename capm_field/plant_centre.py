@@ -34,6 +34,7 @@ BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
 
 PET_MINLEN = 0.07  # of the plant size
 PET_K = 1.0  # ridge threshold, × the 99th percentile of the ridge response on the soil
+PET_LEAF_GAP = 0.10  # of the plant size: farthest a stalk piece may stay from every broad part
 
 
 def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, parts: tuple[float, np.ndarray] | None = None) -> np.ndarray | None:
@@ -42,7 +43,8 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     Clover petioles and rosette leaf stalks are straight lines from the biological centre to
     their leaf. Thin parts (mask minus its opening by a disc ~2.5 % of the plant size) are
     split into pieces; each elongated piece (length ≥ 12 % of the size, ≥ 4× longer than wide)
-    gives a line (principal axis of its second moments). Stalks start at the centre, so the
+    gives a line (principal axis of its second moments) if it comes within PET_LEAF_GAP of a
+    broad part (a stalk carries a leaf). Stalks start at the centre, so the
     lines of two stalks cross there, beyond one end of each piece (a stalk's start may be
     hidden under young leaves), whereas a leaf junction is on one stalk only. Every crossing
     of two non-parallel lines near an end of both pieces is a hypothesis; it is supported by
@@ -70,9 +72,14 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     thin = ((ridge > max(noise, 1e-4) * PET_K) & ~broad & (vi > soil + 0.3 * (thr - soil)) & (hull > 0)).astype(np.uint8)
     thin |= (pm & ~broad).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(thin.astype(np.uint8), connectivity=8)
+    # a stalk carries a leaf (or starts under one): a thin piece far from every broad part is a
+    # blade or straw grouped with the plant, and its line crosses the real stalks anywhere
+    off_leaf = cv2.distanceTransform((~broad).astype(np.uint8), cv2.DIST_L2, 3) if broad.any() else None
     segs = []  # (centre point, unit direction, half-length, weight)
     for c in range(1, n):
         if stats[c, cv2.CC_STAT_AREA] < 0.04 * size:
+            continue
+        if off_leaf is not None and float(off_leaf[lab == c].min()) > max(PET_LEAF_GAP * size, 2.0):
             continue
         yy, xx = np.nonzero(lab[stats[c, cv2.CC_STAT_TOP]:stats[c, cv2.CC_STAT_TOP] + stats[c, cv2.CC_STAT_HEIGHT],
                                 stats[c, cv2.CC_STAT_LEFT]:stats[c, cv2.CC_STAT_LEFT] + stats[c, cv2.CC_STAT_WIDTH]] == c)
