@@ -139,9 +139,13 @@ class BodyServer:
         self._stop = threading.Event()
         self._next_cmd = 1
         self._lease: tuple[str, str, int] | None = None  # (client, token, expires monotonic ns)
-        self._last_checkin_ns: int | None = None
+        self._checkins: dict[str, int] = {}  # client -> monotonic ns of its last check-in
+        self._engaged_by: set[str] = set()  # clients whose CheckIn engage=true holds the E-stop (latched)
+        self._live_clients: set[str] = set()  # clients whose P/client/<client> token is present
         self._keepalive_ok: bool | None = None
         self._last_move: tuple[int, str] | None = None
+        self._last_fb_id = 0  # highest cmd_id whose end was published on feedback
+        self._pending_fb: list[dict] = []  # ends found while answering a query, published by the loop
         self._seq = 0
         self._peers: dict[str, dict] = {}
         self.security: dict | None = None
@@ -236,29 +240,37 @@ class BodyServer:
                 next_ns = now
             self._stop.wait(max(0.0, (next_ns - now) * 1e-9))
 
+    def _keepalive_fresh(self, now: int) -> bool:
+        """Whether the E-stop keep-alive holds: while a lease is held, the holder's own check-ins
+        count (another client's must not keep a silent commander's body moving); without a lease,
+        anybody's (nobody can move the body then)."""
+        if self._lease is not None:
+            last = self._checkins.get(self._lease[0])
+        else:
+            last = max(self._checkins.values(), default=None)
+        return last is not None and now - last <= self.config.estop_timeout_s * 1e9
+
     def _tick(self) -> None:
         now = time.monotonic_ns()
         with self._lock:
-            if self._keepalive_ok and (
-                self._last_checkin_ns is None or now - self._last_checkin_ns > self.config.estop_timeout_s * 1e9
-            ):
-                self._keepalive_ok = False
-                self._stats["estop_timeouts"] += 1
-                self.backend.keepalive(False)
             if self._lease is not None and now > self._lease[2]:
                 self._stats["lease_expired"] += 1
                 self._drop_lease("lease_expired")
+            if self._keepalive_ok and not self._keepalive_fresh(now):
+                self._keepalive_ok = False
+                self._stats["estop_timeouts"] += 1
+                self.backend.keepalive(False)
             st = self.backend.poll()
             self._seq += 1
             holder = self.lease_holder
-        m = st.move
-        if m is not None and (m.cmd_id, m.status) != self._last_move:
-            self._last_move = (m.cmd_id, m.status)
-            if m.done:
-                p = m.final or st.pose
-                fb = {"t_ns": now, "cmd_id": m.cmd_id, "status": m.status, "reason": m.reason,
-                      "pose": pose_map(*p.as_tuple())}
-                self._feedback_pub.put(encode("feedback", fb))
+            m = st.move
+            fbs, self._pending_fb = self._pending_fb, []
+            if m is not None and (m.cmd_id, m.status) != self._last_move:
+                self._last_move = (m.cmd_id, m.status)
+                if m.done and m.cmd_id > self._last_fb_id:
+                    fbs.append(self._end_feedback(now, m.cmd_id, m.status, m.reason, m.final or st.pose))
+        for fb in fbs:
+            self._feedback_pub.put(encode("feedback", fb))
         msg = {
             "t_ns": now, "seq": self._seq, "pose": pose_map(*st.pose.as_tuple()), "moving": st.moving,
             "powered": st.powered, "estop": st.estop, "estop_reason": st.estop_reason,
@@ -268,6 +280,11 @@ class BodyServer:
         }
         self._state_pub.put(encode("state", msg))
         self._stats["state_published"] += 1
+
+    def _end_feedback(self, now: int, cmd_id: int, status: str, reason: str | None, pose: SE2) -> dict:
+        # every move's end is published once (cmd_ids increase and a move ends before the next starts)
+        self._last_fb_id = max(self._last_fb_id, cmd_id)
+        return {"t_ns": now, "cmd_id": cmd_id, "status": status, "reason": reason, "pose": pose_map(*pose.as_tuple())}
 
     def _drop_lease(self, reason: str) -> None:
         # Losing the commander (lease expired, released or its session gone) stops the body.
@@ -303,21 +320,37 @@ class BodyServer:
     def _require_lease(self, msg: dict) -> None:
         lease = self._lease
         if lease is None or lease[0] != msg["client"] or lease[1] != msg["lease"]:
-            who = f"held by {lease[0]!r}" if lease else "not held"
+            if lease is None:
+                who = "nobody holds it"
+            elif lease[0] == msg["client"]:
+                who = "the token does not match: it was granted to another session of that client id"
+            else:
+                who = f"held by {lease[0]!r}"
             raise ProtocolError("no_lease", f"client {msg['client']!r} does not hold the body lease ({who})")
 
     def _do_move(self, msg: dict) -> dict:
+        # the message is checked whole before who sends it: a malformed Move is 'malformed' for anyone
+        if msg["timeout_ns"] <= 0:
+            raise ProtocolError("malformed", "timeout_ns must be > 0")
         self._require_lease(msg)
         g = msg["goal"]
         timeout_s = min(msg["timeout_ns"] * 1e-9, self.config.max_move_timeout_s)
-        if timeout_s <= 0:
-            raise ProtocolError("malformed", "timeout_ns must be > 0")
+        before = self.backend.poll()
         cmd_id = self._next_cmd
         try:
             self.backend.start_move(cmd_id, SE2(float(g["x"]), float(g["y"]), float(g["yaw"])), timeout_s)
         except EStopActive as e:
             raise ProtocolError("estop", str(e)) from None
         self._next_cmd += 1
+        prev = before.move
+        if prev is not None and prev.cmd_id > self._last_fb_id:
+            # the previous move ends here if it was still running (preempted), or ended since the
+            # last loop tick (a Stop just before): its end must still be published once
+            now = time.monotonic_ns()
+            if prev.done:
+                self._pending_fb.append(self._end_feedback(now, prev.cmd_id, prev.status, prev.reason, prev.final or before.pose))
+            else:
+                self._pending_fb.append(self._end_feedback(now, prev.cmd_id, "stopped", "preempted", before.pose))
         return {"cmd_id": cmd_id}
 
     def _do_stop(self, msg: dict) -> dict:
@@ -337,8 +370,17 @@ class BodyServer:
             raise ProtocolError(
                 "lease_refused", f"body lease held by {lease[0]!r} (expires in {(lease[2] - now) * 1e-9:.1f} s unless refreshed)"
             )
+        if lease is not None and msg.get("lease") != lease[1]:
+            # a refresh must show the token: the client id alone (visible to every observer in
+            # State.lease_holder) must not hand the lease to another session
+            raise ProtocolError(
+                "lease_refused", f"body lease held by {lease[0]!r} under another token (a refresh needs the "
+                f"token it was granted; expires in {(lease[2] - now) * 1e-9:.1f} s unless refreshed)"
+            )
         token = lease[1] if lease is not None else secrets.token_hex(8)
         self._lease = (msg["client"], token, now + ttl)
+        if lease is None and msg["client"] not in self._live_clients:
+            self._stats["lease_without_token"] += 1  # no P/client token: losing this commander is seen by the keep-alive only
         return {"lease": token, "ttl_ns": ttl}
 
     def _do_lease_release(self, msg: dict) -> dict:
@@ -347,12 +389,20 @@ class BodyServer:
         return {}
 
     def _do_checkin(self, msg: dict) -> dict:
-        self._last_checkin_ns = time.monotonic_ns()
-        if msg.get("engage"):
-            self.backend.keepalive(False, "estop_engaged_by_client")  # a client may assert the E-stop (Spot's settle_then_cut)
+        now, client, engage = time.monotonic_ns(), msg["client"], msg.get("engage")
+        self._checkins[client] = now
+        if engage is True:
+            # a client asserts the E-stop (Spot's settle_then_cut): latched until every client that
+            # engaged it has sent engage=false (or its session is gone); plain check-ins keep it
+            self._engaged_by.add(client)
             self._keepalive_ok = False
-            self._last_checkin_ns = None
-        elif not self._keepalive_ok:
+            self.backend.keepalive(False, "estop_engaged_by_client")
+        elif engage is False and self._engaged_by:
+            self._engaged_by = {c for c in self._engaged_by if c != client and c in self._live_clients}
+            if self._engaged_by:
+                raise ProtocolError("estop", f"the E-stop is also engaged by {', '.join(sorted(self._engaged_by))}, "
+                                             "whose session is open: only it can release its engage")
+        if not self._engaged_by and not self._keepalive_ok and self._keepalive_fresh(now):
             self._keepalive_ok = True
             self.backend.keepalive(True)
         st = self.backend.poll()
@@ -383,10 +433,14 @@ class BodyServer:
     def _on_client(self, sample) -> None:
         import zenoh
 
-        if sample.kind != zenoh.SampleKind.DELETE:
-            return
         client = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sample.kind != zenoh.SampleKind.DELETE:
+            with self._lock:
+                self._live_clients.add(client)
+            return
         with self._lock:
+            self._live_clients.discard(client)
+            self._checkins.pop(client, None)  # a later session with this id starts afresh
             if self._lease is not None and self._lease[0] == client:
                 self._stats["commander_lost"] += 1
                 self._drop_lease("commander_lost")

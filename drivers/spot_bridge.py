@@ -9,8 +9,9 @@ protobufs. bosdyn-client is the optional extra `[spot]`, imported only here and 
 
 Mapping to Spot's own safety model: the bridge holds the body lease with `LeaseKeepAlive` and
 an E-stop endpoint with `EstopKeepAlive`. The protocol's E-stop check-ins gate the bridge's:
-when the commander stops checking in, the bridge stops the body and lets Spot settle and cut
-motor power (`settle_then_cut`); a new check-in allows again (power on via `cmd/power`).
+when the commander (the lease holder) stops checking in, or a client engages the E-stop, the
+bridge stops the body and lets Spot settle and cut motor power (`settle_then_cut`); the
+server allows again on a fresh check-in once every engage is released (power on via `cmd/power`).
 Field frame = Spot's odom frame moved by `--field-in-odom x,y,yaw` (where the field origin
 sits in odom when the bridge starts; a registration step is outside this bridge).
 """

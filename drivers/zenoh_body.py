@@ -214,9 +214,17 @@ class ZenohBody(Body):
         self._query(self.keys.cmd_power, "power", {"client": self.client_id, "lease": self._lease or "", "on": on}, deadline)
 
     def engage_estop(self, timeout: float = 0.5) -> None:
-        """Assert the keep-alive E-stop now (Spot's settle_then_cut); the next check-in releases it."""
+        """Assert the E-stop now (Spot's settle_then_cut). It stays engaged, through this client's
+        own periodic check-ins, until `release_estop()` (or this session ends)."""
         self._query(self.keys.estop_checkin, "checkin",
                     {"client": self.client_id, "seq": self._next_seq(), "engage": True}, time.monotonic() + timeout)
+
+    def release_estop(self, timeout: float = 0.5) -> bool:
+        """Release this client's engage; True when the body is free to move (no other engage,
+        keep-alive fresh). Raises EStopActive while another open session's engage holds it."""
+        ack = self._query(self.keys.estop_checkin, "checkin",
+                          {"client": self.client_id, "seq": self._next_seq(), "engage": False}, time.monotonic() + timeout)
+        return not ack["estop"]
 
     def ping(self, timeout: float = 0.5) -> float:
         """One E-stop check-in round trip (s): a harmless command for link figures."""

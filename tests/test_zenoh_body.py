@@ -179,6 +179,119 @@ def test_estop_keepalive_timeout_stops_the_body(port, raw):
         assert not bench.sim.estop
 
 
+def _checkin(s, client: str, seq: int, **kw) -> tuple[bool, dict]:
+    return ask(s, Keys(RID).estop_checkin, encode("checkin", {"client": client, "seq": seq, **kw}))
+
+
+def _lease(s, client: str, token: str | None = None) -> tuple[bool, dict]:
+    return ask(s, Keys(RID).lease_acquire, encode("lease_acquire", {"client": client, "lease": token}))
+
+
+def _move(s, client: str, token: str, x: float) -> tuple[bool, dict]:
+    return ask(s, Keys(RID).cmd_move, encode("move", {"client": client, "lease": token, "goal": pose_map(x, 0, 0),
+                                                      "timeout_ns": 10**10}))
+
+
+def test_lease_refresh_needs_the_token_not_only_the_client_id(port, raw):
+    """The holder's id is public (State.lease_holder): another session naming it, without the
+    token or with a wrong one, gets neither the token nor the body."""
+    k = Keys(RID)
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST, estop_timeout_s=5.0) as bench:
+        a, b = raw(), raw()
+        _checkin(a, "alpha", 1)
+        ok, rep = _lease(a, "alpha")
+        assert ok
+        token = rep["lease"]
+        for t in (None, "0" * 16):
+            ok, err = _lease(b, "alpha", t)
+            assert not ok and err["error"] == "lease_refused" and token not in err["detail"], err
+        ok, err = ask(b, k.lease_release, encode("lease_release", {"client": "alpha", "lease": "0" * 16}))
+        assert not ok and err["error"] == "no_lease" and "token does not match" in err["detail"]
+        assert bench.server.lease_holder == "alpha"
+        ok, rep = _lease(a, "alpha", token)  # the holder's refresh: same token
+        assert ok and rep["lease"] == token
+        assert bench.server.stats["lease_without_token"] == 1  # the raw sessions declared no P/client token
+
+
+def test_only_the_lease_holders_checkins_keep_its_body_moving(port, raw):
+    """Commander A walks and goes silent while B keeps checking in: A's body stops on the keep-alive."""
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST, estop_timeout_s=0.3, lease_ttl_s=30.0) as bench:
+        a, b = raw(), raw()
+        _checkin(a, "alpha", 1)
+        _, rep = _lease(a, "alpha")
+        ok, _ = _move(a, "alpha", rep["lease"], 5.0)
+        assert ok and wait_for(lambda: bench.sim.moving, 1.0)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.0 and bench.sim.moving:
+            _checkin(b, "bravo", int(1000 * (time.monotonic() - t0)) + 1)
+            time.sleep(0.05)
+        assert not bench.sim.moving and bench.sim.estop_reason == "estop_keepalive_timeout"
+        assert time.monotonic() - t0 < 0.8
+
+
+def test_engaged_estop_holds_until_its_engager_releases_it(port, raw):
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST, estop_timeout_s=5.0) as bench:
+        a, b = raw(), raw()
+        token = a.liveliness().declare_token(Keys(RID).client("alpha"))  # alpha's session is open
+        _checkin(a, "alpha", 1)
+        assert wait_for(lambda: not bench.sim.estop, 1.0)
+        ok, rep = _checkin(a, "alpha", 2, engage=True)
+        assert ok and rep["estop"] and bench.sim.estop_reason == "estop_engaged_by_client"
+        for c, seq in (("alpha", 3), ("bravo", 1)):  # plain check-ins (the keep-alive) keep it
+            ok, rep = _checkin(a if c == "alpha" else b, c, seq)
+            assert ok and rep["estop"], c
+        ok, err = _checkin(b, "bravo", 2, engage=False)  # not bravo's to release while alpha lives
+        assert not ok and err["error"] == "estop" and bench.sim.estop
+        ok, rep = _checkin(a, "alpha", 4, engage=False)
+        assert ok and not rep["estop"] and not bench.sim.estop
+        ok, rep = _checkin(a, "alpha", 5, engage=True)
+        token.undeclare()  # alpha's session ends: its engage no longer binds anybody ...
+        assert wait_for(lambda: _checkin(b, "bravo", 4, engage=False)[0], 2.0)  # ... an explicit release works
+        assert not bench.sim.estop
+
+
+def test_client_engage_survives_its_own_keepalive_until_released(port):
+    from drivers.interfaces import EStopActive
+
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST) as bench:
+        a = ZenohBody(ZenohBodyConfig.loopback(port, RID, client_id="alice"))
+        try:
+            a.engage_estop()
+            n = a.stats["checkins"]
+            assert wait_for(lambda: a.stats["checkins"] >= n + 2, 2.0)  # the background keep-alive ran
+            with pytest.raises(EStopActive):
+                a.move_to(SE2(0.2, 0.0, 0.0), timeout=5.0)
+            assert bench.sim.moves == 0
+            assert a.release_estop()
+            assert a.move_to(SE2(0.2, 0.0, 0.0), timeout=5.0).ok
+        finally:
+            a.close()
+
+
+def test_a_preempted_or_stopped_move_reports_its_end_once(port, raw):
+    k = Keys(RID)
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST, estop_timeout_s=5.0) as bench:
+        s = raw()
+        fb: list[dict] = []
+        sub = s.declare_subscriber(k.feedback, lambda smp: fb.append(decode("feedback", smp.payload.to_bytes())))
+        _checkin(s, "alpha", 1)
+        _, rep = _lease(s, "alpha")
+        tok = rep["lease"]
+        _, m1 = _move(s, "alpha", tok, 5.0)
+        assert wait_for(lambda: bench.sim.moving, 1.0)
+        _, m2 = _move(s, "alpha", tok, -5.0)  # preempts m1
+        ask(s, k.cmd_stop, encode("stop", {"client": "alpha"}))
+        _, m3 = _move(s, "alpha", tok, 0.0)  # right after the stop, maybe within one loop tick
+        assert wait_for(lambda: len(fb) >= 2, 2.0)
+        ask(s, k.cmd_stop, encode("stop", {"client": "alpha"}))
+        assert wait_for(lambda: len(fb) >= 3, 2.0)
+        time.sleep(0.1)
+        ends = [(f["cmd_id"], f["status"], f["reason"]) for f in fb]
+        assert ends[:2] == [(m1["cmd_id"], "stopped", "preempted"), (m2["cmd_id"], "stopped", "stop_requested")], ends
+        assert len(ends) == 3 and ends[2][0] == m3["cmd_id"] and ends[2][1] in ("succeeded", "stopped"), ends
+        sub.undeclare()
+
+
 def test_commander_session_gone_stops_the_body(port):
     with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST, estop_timeout_s=5.0) as bench:
         a = ZenohBody(ZenohBodyConfig.loopback(port, RID, client_id="alice"))
