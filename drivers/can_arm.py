@@ -3,6 +3,8 @@
 Moves stream joint targets at 500 Hz (minimum-jerk from the measured joints, timed within the
 joint speed limit) as ARM_TARGET_A/B pairs; the gateway servoes to them and reports joint
 state (100 Hz) and status (20 Hz + on change). `move_to_pose` solves IK with RobotModel first.
+A state set is the ARM_STATE_A frame directly followed (within 10 ms, nothing of the pair's ids
+in between) by the ARM_STATE_B with the same counter (`SetPairer`); other halves are discarded.
 Outcomes: MoveResult(ok=False, reason) for motion failures (joint_limit, ik_failed, gateway
 fault codes), DriverTimeout when `timeout` runs out, LinkLost when the gateway heartbeat stops
 (or the bus fails); every failure path sends STOP (best effort) before returning or raising.
@@ -28,6 +30,8 @@ from .can.codec import (
     ARM_STOP,
     ARM_STOW,
     NODE_HOST_ARM,
+    SetPairer,
+    database,
 )
 from .can.config import CanArmConfig
 from .can.link import CanLink, wait_for
@@ -53,7 +57,9 @@ class CanArm(Arm):
         self._cv = threading.Condition()
         self._q: np.ndarray | None = None
         self._q_stamp = 0
-        self._pending_a: tuple[int, tuple[float, float, float]] | None = None
+        self._states = SetPairer()
+        db = database()
+        self._state_ids = {db.get_message_by_name(n).frame_id for n in ("ARM_STATE_A", "ARM_STATE_B")}
         self._status: dict = {"Mode": 0, "Enabled": 0, "Moving": 0, "Stowed": 0, "FaultCode": 0, "RxRejected": 0}
         self._status_seen = False
         self._closed = False
@@ -67,6 +73,7 @@ class CanArm(Arm):
             consume={"ARM_STATE_A", "ARM_STATE_B", "ARM_STATUS"},
             on_frame=self._on_frame,
             max_counter_jump=self.cfg.max_counter_jump,
+            on_reject=self._on_reject,
         )
         try:
             self.link.wait_peer(connect_timeout)
@@ -76,18 +83,25 @@ class CanArm(Arm):
             raise
 
     # ---- rx (Notifier thread) ----------------------------------------------------------------
-    def _on_frame(self, name: str, sig: dict) -> None:
+    def _on_reject(self, msg) -> None:
+        if not msg.is_extended_id and msg.arbitration_id in self._state_ids:
+            with self._cv:
+                self._states.interrupt()  # a rejected half between A and B breaks the set
+
+    def _on_frame(self, name: str, sig: dict, stamp: float = 0.0) -> None:
         with self._cv:
             if name == "ARM_STATE_A":
-                self._pending_a = (int(sig["Counter"]), (sig["J1_Position"], sig["J2_Position"], sig["J3_Position"]))
+                self._states.a(int(sig["Counter"]), (sig["J1_Position"], sig["J2_Position"], sig["J3_Position"]), stamp)
                 return
             if name == "ARM_STATE_B":
-                # a state set is the A and B frame with the same counter; a lone half is dropped
-                if self._pending_a is None or self._pending_a[0] != int(sig["Counter"]):
+                q = self._states.b(int(sig["Counter"]), (sig["J4_Position"], sig["J5_Position"], sig["J6_Position"]), stamp)
+                if q is None:  # lone, late or interleaved half: dropped, counted
+                    link = getattr(self, "link", None)  # None while the constructor runs
+                    if link is not None:
+                        link.receiver.reject("pair")
                     return
-                self._q = np.array([*self._pending_a[1], sig["J4_Position"], sig["J5_Position"], sig["J6_Position"]])
+                self._q = np.array(q)
                 self._q_stamp = time.monotonic_ns()
-                self._pending_a = None
             elif name == "ARM_STATUS":
                 self._status = {k: int(v) for k, v in sig.items()}
                 self._status_seen = True

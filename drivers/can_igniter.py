@@ -6,6 +6,11 @@ while `permit()` is True, the flame hold time has not elapsed, the link is up an
 reports no fault; `permit()` is re-checked every `poll_period` (5 ms). EXTINGUISH is sent on
 every exit path of `ignite()` (finally), by `disarm()` and by `close()`; if the host freezes
 or the bus dies the keep-alives stop and the board shuts the valve on its own.
+
+A keep-alive gap, a rejected command frame or host loss makes the board shut the valve and
+disarm itself ("trip"); `ignite()` never re-arms: it ends (flame off) with the trip event as
+reason (`keepalive_timeout`, `bad_frame`, `host_lost`; `disarmed` for anything else), and the
+caller must `arm()` again to burn.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from typing import Callable
 from .can.codec import (
     IGN_ARM,
     IGN_DISARM,
+    IGN_EVENTS,
     IGN_EXTINGUISH,
     IGN_FAULTS,
     IGN_IGNITE,
@@ -26,6 +32,9 @@ from .can.codec import (
 from .can.config import CanIgniterConfig
 from .can.link import CanLink, wait_for
 from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult
+
+# board events that come with the board disarming itself (reported as ignite()'s reason)
+TRIP_EVENTS = ("keepalive_timeout", "bad_frame", "host_lost")
 
 
 class CanIgniter(Igniter):
@@ -37,6 +46,7 @@ class CanIgniter(Igniter):
         self._closed = False
         self.keepalives_sent = 0
         self.last_keepalive_ns: int | None = None
+        self.disarmed_by: str | None = None  # Event in the status where Armed last went 1 -> 0
         self.link = CanLink(
             self.cfg.bus,
             self.cfg.heartbeat,
@@ -56,9 +66,16 @@ class CanIgniter(Igniter):
             raise
 
     # ---- rx (Notifier thread) ----------------------------------------------------------------
-    def _on_frame(self, name: str, sig: dict) -> None:
+    def _on_frame(self, name: str, sig: dict, stamp: float = 0.0) -> None:
         with self._cv:
-            self._status = {k: (v if k == "Fuel" else int(v)) for k, v in sig.items()}
+            new = {k: (v if k == "Fuel" else int(v)) for k, v in sig.items()}
+            if self._status is not None and self._status["Armed"] and not new["Armed"]:
+                # the board sends a status at once on every change, so this frame's Event is the
+                # cause of the disarm (a later IGNITE may overwrite the Event with NOT_ARMED)
+                self.disarmed_by = IGN_EVENTS.get(new["Event"]) or "none"
+            elif new["Armed"]:
+                self.disarmed_by = None
+            self._status = new
             self._status_stamp = time.monotonic_ns()
             self._cv.notify_all()
 
@@ -139,6 +156,7 @@ class CanIgniter(Igniter):
                 now = time.monotonic()
                 with self._cv:
                     flame, fault, stamp = bool(self._s("FlameOn")), self.fault, self._status_stamp
+                    armed = bool(self._s("Armed"))
                 if time.monotonic_ns() - stamp > self.cfg.status_timeout * 1e9:
                     # blind: cannot confirm the flame, so stop now; then tell link loss from lost status
                     self.extinguish()
@@ -152,16 +170,22 @@ class CanIgniter(Igniter):
                     if flame_s >= duration:
                         return result(True)
                     if not flame:
-                        return result(False, fault or "flame_lost")
+                        return result(False, fault or self._off_reason(armed))
                 if fault:
                     return result(False, fault)
+                if not armed:  # the board tripped (or was disarmed): end here, never re-arm
+                    return result(False, self._off_reason(armed))
                 if not permit():
                     return result(False, "permit_dropped")
                 self._check()
                 if now - t0 >= timeout:
                     raise DriverTimeout(f"ignite not complete within {timeout:.3f} s")
                 if now >= next_ka:
-                    # permit, hold time, link and fault were all checked just above
+                    # permit, hold time, link, fault and Armed were all checked just above; the
+                    # latest status must still say armed (a trip may have been reported meanwhile)
+                    with self._cv:
+                        if not self._s("Armed") or self.fault:
+                            continue
                     if self._command(IGN_IGNITE):
                         sent += 1
                         self.keepalives_sent += 1
@@ -172,6 +196,13 @@ class CanIgniter(Igniter):
         finally:
             self.extinguish()
             self._confirm_off(0.2)
+
+    def _off_reason(self, armed: bool) -> str:
+        """Why the flame / trial ended without a fault: the trip event if the board disarmed."""
+        if armed:
+            return "flame_lost"
+        why = self.disarmed_by
+        return why if why in TRIP_EVENTS else "disarmed"
 
     def _confirm_off(self, timeout: float) -> None:
         """Wait (bounded, never raises) for the board to report the flame off."""

@@ -11,7 +11,7 @@ import time
 import can
 
 from capm_field.robot_model import RobotModel
-from drivers.can.codec import NODE_HOST_ARM, NODE_HOST_IGN, Encoder, Receiver
+from drivers.can.codec import IGN_ARM, IGN_IGNITE, NODE_HOST_ARM, NODE_HOST_IGN, Encoder, Receiver
 from drivers.can.config import CanArmConfig, CanBusConfig, CanIgniterConfig, HeartbeatConfig
 from drivers.can.link import open_bus
 from drivers.can_arm import CanArm
@@ -75,6 +75,7 @@ class RawHost(can.Listener):
         self._cv = threading.Condition()
         self.ign_status: dict | None = None
         self.ign_status_t = 0.0
+        self.ign_history: list[tuple[float, dict]] = []  # (receive time, IGN_STATUS) of every status
         self._hb_stop = threading.Event()
         self.bus = open_bus(bus_cfg)
         self.notifier = can.Notifier(self.bus, [self], timeout=0.05)
@@ -99,7 +100,12 @@ class RawHost(can.Listener):
         if got and got[0] == "IGN_STATUS":
             with self._cv:
                 self.ign_status, self.ign_status_t = got[1], time.monotonic()
+                self.ign_history.append((self.ign_status_t, got[1]))
                 self._cv.notify_all()
+
+    def statuses_since(self, t0: float) -> list[dict]:
+        with self._cv:
+            return [st for t, st in self.ign_history if t >= t0]
 
     def send(self, msg: can.Message) -> float:
         self.bus.send(msg)
@@ -108,6 +114,41 @@ class RawHost(can.Listener):
     def ign(self, cmd: int, counter: int | None = None) -> float:
         """Send one IGN_CMD; returns the monotonic time right after sending."""
         return self.send(self.enc.encode("IGN_CMD", {"Command": cmd}, counter=counter))
+
+    def arm_cmd(self, cmd: int, counter: int | None = None) -> float:
+        """Send one ARM_CMD; returns the monotonic time right after sending."""
+        return self.send(self.enc.encode("ARM_CMD", {"Command": cmd}, counter=counter))
+
+    def target_half(self, half: str, q3, counter: int) -> float:
+        """Send ARM_TARGET_A (half 'A', joints 1-3) or ARM_TARGET_B ('B', joints 4-6) with `counter`."""
+        j = (1, 2, 3) if half == "A" else (4, 5, 6)
+        sig = {f"J{k}_Target": float(v) for k, v in zip(j, q3)}
+        return self.send(self.enc.encode(f"ARM_TARGET_{half}", sig, counter=counter))
+
+    def next_target_counter(self) -> int:
+        """The next shared counter value of a target set (both ids advance together)."""
+        c = self.enc.next_counter("ARM_TARGET_A")
+        self.enc.next_counter("ARM_TARGET_B")
+        return c
+
+    def light(self, timeout: float = 3.0) -> float:
+        """ARM, then IGNITE every 20 ms until FlameOn; re-ARMs if the board tripped meanwhile (a
+        host stall > 80 ms on a loaded machine). Returns the time the flame was seen lit."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self.ign(IGN_ARM)
+            if self.wait_ign(lambda s: s["Armed"] == 1, 1.0) is None:
+                continue
+            nxt = time.monotonic()
+            while time.monotonic() < end:
+                self.ign(IGN_IGNITE)
+                nxt += 0.02
+                t_lit = self.wait_ign(lambda s: s["FlameOn"] == 1 or s["Armed"] == 0, max(0.0, nxt - time.monotonic()))
+                if t_lit is not None:
+                    if self.ign_status["FlameOn"] == 1:
+                        return t_lit
+                    break  # tripped: ARM again
+        raise RuntimeError("igniter did not light")
 
     def wait_ign(self, pred, timeout: float) -> float | None:
         """Wait for an IGN_STATUS satisfying pred; returns its receive time or None."""

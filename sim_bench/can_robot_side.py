@@ -5,9 +5,13 @@ thread on their own bus handle, so the real `CanArm` / `CanIgniter` adapters tal
 CAN exactly as on the robot. python-can `virtual` only connects buses of one process: start it
 in the process (test, bench) that opens the adapters, on the same channel name.
 
-Each node validates what it receives with its own `Receiver` (rejected frames are counted and
-never acted on; a rejected IGN_CMD also shuts the igniter valve), consumes the host heartbeats
-(arm: latched HOST_LOST fault; igniter: valve shut + disarmed) and produces its own.
+Each node validates what it receives with its own `Receiver`: rejected frames — unknown 11-bit
+ids, every 29-bit frame, remote/error frames, wrong DLC, bad checksum, bad counter — are counted
+in that node's RxRejected by both nodes alike and never acted on; a rejected IGN_CMD while the
+valve is open also shuts it and disarms the board. The gateway joins ARM_TARGET_A/B with
+`SetPairer` (the B must follow its A directly, within 10 ms; an unpaired B is counted as 'pair').
+Both consume the host heartbeats (arm: latched HOST_LOST fault; igniter: valve shut + disarmed)
+and produce their own.
 
 Fault hooks (`faults`): bus-off (node silent, deaf), dropped / corrupted / stale (repeated)
 frames in either direction, silenced heartbeats; plant faults live on `arm.*` and
@@ -43,8 +47,10 @@ from drivers.can.codec import (
     NMT_OPERATIONAL,
     NODE_ARM_GW,
     NODE_IGN_BOARD,
+    PAIR_WINDOW_S,
     Encoder,
     Receiver,
+    SetPairer,
     database,
 )
 from drivers.can.config import CanBusConfig
@@ -71,7 +77,7 @@ class StreamLog:
     """What the arm gateway saw of the target stream (bench figures)."""
 
     applied: int = 0  # complete A+B pairs accepted
-    incomplete: int = 0  # B without its A (or A overwritten): not applied
+    incomplete: int = 0  # B without its A, late B, or A never completed: not applied
     first_ns: int | None = None
     last_ns: int | None = None
     max_gap_ns: int = 0
@@ -92,6 +98,7 @@ class CanRobotSide:
         arm_status_period: float = 0.05,
         ign_status_period: float = 0.02,
         max_counter_jump: int = 3,
+        pair_window: float = PAIR_WINDOW_S,
     ) -> None:
         self.robot = robot or RobotModel()
         self.arm = ArmPlant(self.robot)
@@ -104,9 +111,11 @@ class CanRobotSide:
         self.enc = Encoder()
         self.arm_rx = Receiver({"ARM_CMD", "ARM_TARGET_A", "ARM_TARGET_B", "HB_HOST_ARM"}, max_counter_jump)
         self.ign_rx = Receiver({"IGN_CMD", "HB_HOST_IGN"}, max_counter_jump)
-        self._ign_cmd_id = database().get_message_by_name("IGN_CMD").frame_id
+        db = database()
+        self._ign_cmd_id = db.get_message_by_name("IGN_CMD").frame_id
+        self._target_ids = {db.get_message_by_name(n).frame_id for n in ("ARM_TARGET_A", "ARM_TARGET_B")}
         self._last_tx: dict[str, can.Message] = {}
-        self._pending_a: tuple[int, np.ndarray] | None = None
+        self.targets = SetPairer(pair_window)
         self._host_arm_hb: float | None = None
         self._host_ign_hb: float | None = None
         self.lock = threading.RLock()  # held by the loop while it touches the plants
@@ -157,21 +166,37 @@ class CanRobotSide:
             f.drop_rx[name] -= 1
             return
         now = time.monotonic()
+        stamp = msg.timestamp or time.time()  # bus receive time (virtual: send time)
+        std = not msg.is_extended_id
+        before = self.arm_rx.stats.rejected_total
         got = self.arm_rx.accept(msg)
         if got:
-            self._arm_frame(*got, now)
+            self._arm_frame(*got, now, stamp)
+        elif std and msg.arbitration_id in self._target_ids and self.arm_rx.stats.rejected_total > before:
+            self.targets.interrupt()  # a rejected target half between A and B breaks the set
         before = self.ign_rx.stats.rejected_total
         got = self.ign_rx.accept(msg)
         if got:
             self._ign_frame(*got, now)
-        elif msg.arbitration_id == self._ign_cmd_id and self.ign_rx.stats.rejected_total > before:
-            self.board.bad_frame(now)  # never acted on, and the flame goes off
+        elif self.ign_rx.stats.rejected_total > before:
+            # counted in RxRejected like the gateway's; a rejected IGN_CMD (11-bit id 0x120) while
+            # the valve is open also shuts it and disarms the board; status goes out at once
+            is_cmd = std and msg.arbitration_id == self._ign_cmd_id
+            self.board.frame_rejected(now, command=is_cmd)
+            if is_cmd:
+                self._send_ign_status()
 
-    def _arm_frame(self, name: str, sig: dict, now: float) -> None:
+    def _arm_frame(self, name: str, sig: dict, now: float, stamp: float) -> None:
         a = self.arm
         if name == "HB_HOST_ARM":
-            self._host_arm_hb = now if sig["NmtState"] == NMT_OPERATIONAL else None
+            if sig["NmtState"] == NMT_OPERATIONAL:
+                self._host_arm_hb = now
+            else:  # a host that says it is not operational is lost, at once
+                self._host_arm_hb = None
+                if a.enabled:
+                    a.set_fault("host_lost")
         elif name == "ARM_CMD":
+            self.targets.interrupt()  # a command between the halves of a set discards the set
             cmd = int(sig["Command"])
             if cmd == ARM_ENABLE and self._host_arm_hb is not None:
                 a.enable()
@@ -182,18 +207,18 @@ class CanRobotSide:
             elif cmd == ARM_STOW:
                 a.stow()
             elif cmd == ARM_RESET:
-                a.reset()
+                a.reset()  # accepted without the host heartbeat: it only ends in DISABLED
         elif name == "ARM_TARGET_A":
-            if self._pending_a is not None:
+            if self.targets.pending:
                 self.stream.incomplete += 1
-            self._pending_a = (int(sig["Counter"]), np.array([sig["J1_Target"], sig["J2_Target"], sig["J3_Target"]]))
+            self.targets.a(int(sig["Counter"]), (sig["J1_Target"], sig["J2_Target"], sig["J3_Target"]), stamp)
         elif name == "ARM_TARGET_B":
-            pa, self._pending_a = self._pending_a, None
-            if pa is None or pa[0] != int(sig["Counter"]):
+            q6 = self.targets.b(int(sig["Counter"]), (sig["J4_Target"], sig["J5_Target"], sig["J6_Target"]), stamp)
+            if q6 is None:  # lone, late or interleaved B: discarded and counted in RxRejected
                 self.stream.incomplete += 1
+                self.arm_rx.reject("pair")
                 return
-            q = np.concatenate([pa[1], [sig["J4_Target"], sig["J5_Target"], sig["J6_Target"]]])
-            a.set_target(q)
+            a.set_target(np.array(q6))  # ignored (not counted) unless HOLDING / TRACKING
             s = self.stream
             t = time.monotonic_ns()
             if s.last_ns is not None:
@@ -209,9 +234,14 @@ class CanRobotSide:
     def _ign_frame(self, name: str, sig: dict, now: float) -> None:
         b = self.board
         if name == "HB_HOST_IGN":
-            ok = sig["NmtState"] == NMT_OPERATIONAL
-            self._host_ign_hb = now if ok else None
-            b.host_present = ok
+            if sig["NmtState"] == NMT_OPERATIONAL:
+                self._host_ign_hb = now
+                b.host_present = True
+            else:  # not operational counts as lost, at once: valve shut, disarmed
+                self._host_ign_hb = None
+                b.host_lost(now)
+                if self._ign_status() != self._last_ign_status:
+                    self._send_ign_status()  # the trip's Event goes out before anything else
             return
         cmd = int(sig["Command"])
         if cmd == IGN_ARM:
@@ -258,7 +288,7 @@ class CanRobotSide:
     def _ign_status(self) -> tuple:
         b = self.board
         return (int(b.armed), int(b.flame_on), int(b.igniting), int(b.fault is not None), round(b.fuel * 10000) / 100,
-                IGN_FAULT_CODES.get(b.fault, 0), IGN_EVENT_CODES.get(b.event, 0), b.rejected & 0xFF)
+                IGN_FAULT_CODES.get(b.fault, 0), IGN_EVENT_CODES.get(b.event, 0), b.rejected & 0xFF)  # == ign_rx rejections
 
     def _send_ign_status(self) -> None:
         st = self._ign_status()

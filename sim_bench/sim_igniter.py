@@ -2,12 +2,17 @@
 
 `IgniterBoard` is the board's firmware logic, the contract a real board must meet:
 * it opens the valve and sparks only when ARMED, fault-free, fuelled, with the host present,
-  and only while IGNITE keep-alives keep arriving: a gap > `keepalive_timeout` (default 80 ms,
-  so the flame is off within 100 ms of the last keep-alive), a rejected command frame (bad
-  checksum, stale/repeated counter, wrong length) or host heartbeat loss closes the valve;
+  and only while IGNITE keep-alives keep arriving;
+* a keep-alive gap > `keepalive_timeout` (default 80 ms, so the valve is shut within 100 ms of
+  the last keep-alive), a rejected command frame while the valve is open (bad checksum,
+  stale/repeated counter, wrong length) or host heartbeat loss shuts the valve AND disarms the
+  board ("trip": Event KEEPALIVE_TIMEOUT / BAD_FRAME / HOST_LOST); burning again needs an
+  explicit ARM, so resumed keep-alives never re-light on their own. An IGNITE arriving after the
+  gap has already expired trips too (it does not revive the valve);
 * an ignition trial is bounded (`trial_time`): no flame by then latches IGNITION_FAILED;
 * burning consumes fuel (`fuel_per_s`); empty latches FUEL_EMPTY; a flame-out latches FLAME_OUT;
-* latched faults keep the valve shut until RESET_FAULT (then ARM again).
+* latched faults keep the valve shut until RESET_FAULT (then ARM again);
+* `event` holds the last event until another replaces it; an accepted ARM clears it.
 Time is passed in (seconds); the wire gateway uses the monotonic clock, the in-process driver a
 `SimClock`. Randomness (ignition failure probability) comes from a seeded generator.
 """
@@ -21,6 +26,10 @@ from typing import Callable
 from drivers.interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult
 
 from .sim_clock import SimClock
+
+
+# events with which the board shuts the valve and disarms itself (ignite() reports them as reason)
+TRIP_EVENTS = ("keepalive_timeout", "bad_frame", "host_lost")
 
 
 @dataclass(frozen=True)
@@ -66,6 +75,7 @@ class IgniterBoard:
     def arm(self, now: float) -> None:
         if self.fault is None and self.host_present and self.fuel > 0.0:
             self.armed = True
+            self.event = None  # a fresh arming period: Event reports only what happens from now
 
     def disarm(self, now: float) -> None:
         self._shut(now, "extinguished")
@@ -84,21 +94,29 @@ class IgniterBoard:
         if not (self.armed and self.fault is None and self.host_present and self.fuel > 0.0):
             self.event = "not_armed"
             return
+        if self.valve_open and now - self._last_keepalive > self.p.keepalive_timeout:
+            self._trip(now, "keepalive_timeout")  # too late: the gap expired before this frame
+            return
         self._last_keepalive = now
         if not self.valve_open:
             self.valve_open = True
             self._trial_start = now
             self._trial_fails = self.hooks.fail_to_light or self.rng.random() < self.p.p_fail_light
 
-    def bad_frame(self, now: float) -> None:
-        """A rejected command frame: never acted on, and the flame goes off (fail safe)."""
+    def frame_rejected(self, now: float, command: bool = True) -> None:
+        """A frame the board's receiver rejected: counted (RxRejected), never acted on. A rejected
+        IGN_CMD while the valve is open (trial or flame) trips the board: valve shut, disarmed."""
         self.rejected += 1
-        self._shut(now, "bad_frame")
+        if command and self.valve_open:
+            self._trip(now, "bad_frame")
+
+    def bad_frame(self, now: float) -> None:
+        """A rejected IGN_CMD (see `frame_rejected`)."""
+        self.frame_rejected(now, command=True)
 
     def host_lost(self, now: float) -> None:
         self.host_present = False
-        self._shut(now, "host_lost")
-        self.armed = False
+        self._trip(now, "host_lost")
 
     # ---- time ------------------------------------------------------------------------------
     def tick(self, now: float) -> None:
@@ -110,7 +128,7 @@ class IgniterBoard:
         if not self.valve_open:
             return
         if now - self._last_keepalive > self.p.keepalive_timeout:
-            self._shut(now, "keepalive_timeout")
+            self._trip(now, "keepalive_timeout")
             return
         if not self.flame_on:
             if self._trial_fails or self.hooks.fail_to_light:
@@ -130,11 +148,20 @@ class IgniterBoard:
             self._latch(now, "flame_out")
 
     def _shut(self, now: float, event: str | None) -> None:
+        """Valve shut; `event` (if any) is reported only when the valve was actually open."""
         if self.valve_open or self.flame_on:
             self.flame_off_at = now
-            self.event = event
+            if event is not None:
+                self.event = event
         self.valve_open = False
         self.flame_on = False
+
+    def _trip(self, now: float, event: str) -> None:
+        """Valve shut and disarmed by the board itself; Event says why (if it was armed or open)."""
+        if self.armed or self.valve_open or self.flame_on:
+            self.event = event
+        self._shut(now, event)
+        self.armed = False
 
     def _latch(self, now: float, fault: str) -> None:
         self._shut(now, None)
@@ -219,9 +246,11 @@ class SimIgniterDriver(Igniter):
                     if flame_s >= duration:
                         return MoveResult(True, extra={"flame_s": flame_s})
                     if not b.flame_on:
-                        return MoveResult(False, b.fault or "flame_lost", extra={"flame_s": flame_s})
+                        return MoveResult(False, self._off_reason(), extra={"flame_s": flame_s})
                 if b.fault:
                     return MoveResult(False, b.fault, extra={"flame_s": flame_s})
+                if not b.armed:  # the board tripped (keep-alive gap, bad frame, host lost): never re-armed here
+                    return MoveResult(False, self._off_reason(), extra={"flame_s": flame_s})
                 if not permit():
                     return MoveResult(False, "permit_dropped", extra={"flame_s": flame_s})
                 if now - t0 >= timeout:
@@ -233,6 +262,14 @@ class SimIgniterDriver(Igniter):
                 self._tick()
         finally:
             self.extinguish()
+
+    def _off_reason(self) -> str:
+        b = self.board
+        if b.fault:
+            return b.fault
+        if not b.armed:
+            return b.event if b.event in TRIP_EVENTS else "disarmed"
+        return "flame_lost"
 
     def state(self) -> IgniterState:
         b = self.board

@@ -9,8 +9,12 @@ module does (docs/protocols/can.md is the reference for a gateway author):
   ``[id & 0xFF, (id >> 8) & 0xFF, b0 .. b7]`` with b7 (the checksum itself) set to 0.
   Including the id stops a payload that is valid for one frame being accepted as another.
 
-Receivers (`Receiver`) reject — and count, never act on — unknown ids, wrong DLC, bad
-checksum, repeated counters and out-of-sequence (stale / reordered) counters.
+Receivers (`Receiver`) reject — and count, never act on — unknown ids, 29-bit (extended)
+frames, remote and error frames, wrong DLC, bad checksum, repeated counters and out-of-sequence
+(stale / reordered) counters. The counter and CRC catch faults of an honest sender (lost,
+repeated, stale, reordered, corrupted frames); they are no protection against a deliberate
+sender on the bus (a recorded pair of consecutive frames replays through the resync rule).
+`SetPairer` joins the A and B halves of a joint set (targets, states).
 """
 
 from __future__ import annotations
@@ -127,7 +131,17 @@ class Encoder:
 
 
 # ---- reception -------------------------------------------------------------------------------
-REJECT_REASONS = ("unknown_id", "dlc", "remote_or_error", "checksum", "counter_repeated", "counter_sequence", "decode")
+REJECT_REASONS = (
+    "unknown_id",  # 11-bit id not in the DBC
+    "extended_id",  # any 29-bit frame (the protocol is CAN 2.0A only)
+    "remote_or_error",
+    "dlc",
+    "checksum",
+    "counter_repeated",
+    "counter_sequence",
+    "decode",
+    "pair",  # counted by the set consumer (`SetPairer`): a B half without its A (lone, late, interleaved)
+)
 
 
 @dataclass
@@ -147,8 +161,10 @@ class RxStats:
 
 class _CounterCheck:
     """AUTOSAR-E2E-like counter check for one id: step 1 ok, 2..max_jump ok with loss,
-    0 = repeated, anything else = out of sequence. Resync after a sender restart: a rejected
-    counter becomes a candidate, and a frame that follows the candidate by 1 is accepted."""
+    0 = repeated, anything else = out of sequence. The first frame ever seen is accepted with
+    any counter. Resync after a sender restart: a counter-rejected frame's counter becomes the
+    candidate, and a frame that follows the candidate by 1 is accepted (frames rejected earlier,
+    by DLC or checksum, never reach this check: they neither resync nor consume a value)."""
 
     def __init__(self, max_jump: int) -> None:
         self.max_jump = max_jump
@@ -187,17 +203,24 @@ class Receiver:
         self.stats = RxStats()
         self.last_reject: str | None = None
 
-    def _reject(self, reason: str) -> None:
+    def reject(self, reason: str) -> None:
+        """Count a rejection (also used by set consumers for discarded halves: 'pair')."""
         self.stats.rejected[reason] += 1
         self.last_reject = reason
 
     def accept(self, msg: can.Message) -> tuple[str, dict] | None:
         fid = msg.arbitration_id
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-            self._reject("remote_or_error" if fid in self._known or msg.is_error_frame else "unknown_id")
+        if msg.is_error_frame:
+            self.reject("remote_or_error")
+            return None
+        if msg.is_extended_id:  # 29-bit: never a frame of this protocol, whatever its number
+            self.reject("extended_id")
+            return None
+        if msg.is_remote_frame:
+            self.reject("remote_or_error" if fid in self._known else "unknown_id")
             return None
         if fid not in self._known:
-            self._reject("unknown_id")
+            self.reject("unknown_id")
             return None
         if fid not in self._consume:
             self.stats.ignored += 1
@@ -205,22 +228,71 @@ class Receiver:
         m = self.db.get_message_by_frame_id(fid)
         data = bytes(msg.data)
         if len(data) != m.length or msg.dlc != m.length:
-            self._reject("dlc")
+            self.reject("dlc")
             return None
         protected = is_protected(m)
         if protected and data[CHECKSUM_BYTE] != frame_checksum(fid, data):
-            self._reject("checksum")
+            self.reject("checksum")
             return None
         try:
             sig = m.decode(data, decode_choices=False, scaling=True)
         except Exception:  # noqa: BLE001 - any decode problem is a rejected frame
-            self._reject("decode")
+            self.reject("decode")
             return None
         if protected:
             reason, lost = self._checks[fid].check(int(sig["Counter"]))
             if reason:
-                self._reject(reason)
+                self.reject(reason)
                 return None
             self.stats.lost += lost
         self.stats.accepted += 1
         return m.name, sig
+
+
+# ---- joint sets split over two frames -------------------------------------------------------
+PAIR_WINDOW_S = 0.010
+
+
+class SetPairer:
+    """Joins the A and B halves of a joint set (ARM_TARGET_A/B, ARM_STATE_A/B).
+
+    A B half is paired only with the immediately preceding frame of the pair's two ids if that
+    frame is an A with the same counter and the B arrived within `window` s of it (bus receive
+    timestamps). Anything else between them — another A or B (accepted or rejected), or an
+    interrupting command (`interrupt()`) — discards the pending A. A B that cannot be paired
+    returns None (the caller discards it and counts it: reason 'pair'); a lone A is simply never
+    applied. Call from one thread.
+    """
+
+    def __init__(self, window: float = PAIR_WINDOW_S) -> None:
+        self.window = window
+        self._a: tuple[int, tuple, float] | None = None
+        self.paired = 0
+        self.discarded_b = 0
+        self.dropped_a = 0  # A halves never completed
+
+    def a(self, counter: int, values, stamp: float) -> None:
+        if self._a is not None:
+            self.dropped_a += 1
+        self._a = (int(counter), tuple(values), float(stamp))
+
+    def b(self, counter: int, values, stamp: float) -> tuple | None:
+        """The joined set (A values + B values), or None: discard this B."""
+        pa, self._a = self._a, None
+        if pa is None or pa[0] != int(counter) or not (0.0 <= float(stamp) - pa[2] <= self.window):
+            if pa is not None:
+                self.dropped_a += 1
+            self.discarded_b += 1
+            return None
+        self.paired += 1
+        return pa[1] + tuple(values)
+
+    def interrupt(self) -> None:
+        """A frame that breaks a set (rejected half, command in between): drop the pending A."""
+        if self._a is not None:
+            self.dropped_a += 1
+            self._a = None
+
+    @property
+    def pending(self) -> bool:
+        return self._a is not None

@@ -1,10 +1,12 @@
 """One CAN node on the host side: bus + Notifier + Receiver + CANopen-style heartbeats.
 
 The adapters (`CanArm`, `CanIgniter`) each own one `CanLink`. It opens the python-can bus from
-config, runs exactly one `Notifier` on it (decoded, validated frames go to `on_frame` in the
-Notifier's thread), produces the host heartbeat and consumes the peer's: no valid peer
-heartbeat for `timeout` s (or a peer not OPERATIONAL, or a send error such as bus-off) makes
-the link lost, which the adapters turn into `LinkLost`. `close()` stops the heartbeat thread,
+config, runs exactly one `Notifier` on it (decoded, validated frames go to
+`on_frame(name, signals, stamp)` in the Notifier's thread, `stamp` being the frame's bus
+receive timestamp in s; frames the receiver rejected go to `on_reject(msg)` if given),
+produces the host heartbeat and consumes the peer's: no valid peer heartbeat for `timeout` s
+(or a peer not OPERATIONAL, or a send error such as bus-off) makes the link lost, which the
+adapters turn into `LinkLost`. `close()` stops the heartbeat thread,
 then the Notifier, then shuts the bus down (that order: see DEPENDENCY_NOTES, python-can).
 """
 
@@ -41,9 +43,10 @@ class CanLink(can.Listener):
         own_node: int,
         peer_heartbeat: str,
         consume: set[str],
-        on_frame: Callable[[str, dict], None],
+        on_frame: Callable[[str, dict, float], None],
         max_counter_jump: int = 3,
         on_lost: Callable[[str], None] | None = None,
+        on_reject: Callable[[can.Message], None] | None = None,
     ) -> None:
         self.hb_cfg = hb_cfg
         self.encoder = Encoder()
@@ -51,7 +54,8 @@ class CanLink(can.Listener):
         self._peer_hb = peer_heartbeat
         self._peer_hb_id = self.encoder.db.get_message_by_name(peer_heartbeat).frame_id
         self.receiver = Receiver(set(consume) | {peer_heartbeat}, max_counter_jump)
-        self._on_frame, self._on_lost = on_frame, on_lost
+        self._rejected_seen = 0
+        self._on_frame, self._on_lost, self._on_reject = on_frame, on_lost, on_reject
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()
         self._wake = threading.Event()
@@ -72,6 +76,9 @@ class CanLink(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         got = self.receiver.accept(msg)
         if got is None:
+            if self._on_reject is not None and self.receiver.stats.rejected_total != self._rejected_seen:
+                self._on_reject(msg)
+            self._rejected_seen = self.receiver.stats.rejected_total
             return
         name, sig = got
         if name == self._peer_hb:
@@ -86,7 +93,8 @@ class CanLink(can.Listener):
             self.peer_seen.set()
             self._wake.set()
             return
-        self._on_frame(name, sig)
+        # bus receive time (socketcan: kernel stamp; virtual: send time); local clock if absent
+        self._on_frame(name, sig, msg.timestamp or time.time())
 
     def on_error(self, exc: Exception) -> None:
         # Called by the Notifier for a recv error (bus-off, interface down) or a handler bug; it

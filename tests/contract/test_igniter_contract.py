@@ -21,6 +21,7 @@ class Rig:
     now: Callable[[], float]  # the driver's clock (simulated in process, monotonic on the wire)
     lose_link: Callable[[], None]
     settle: Callable[[], None]
+    stall: Callable[[float], None]  # the host stops for s seconds (simulated or real time)
 
 
 @pytest.fixture(params=["inprocess", "can"])
@@ -31,7 +32,7 @@ def rig(request):
         def lose() -> None:
             drv.hooks.link_lost = True
 
-        yield Rig(drv, drv.board, drv.clock.now, lose, lambda: None)
+        yield Rig(drv, drv.board, drv.clock.now, lose, lambda: None, drv.clock.sleep)
         drv.close()
         return
     from sim_bench.can_rig import CanBench
@@ -54,7 +55,7 @@ def rig(request):
             seen, last = seen + (stamp != last), stamp
 
     try:
-        yield Rig(bench.igniter, rs.board, time.monotonic, lose, settle)
+        yield Rig(bench.igniter, rs.board, time.monotonic, lose, settle, time.sleep)
     finally:
         bench.close()
 
@@ -166,3 +167,30 @@ def test_disarm_and_extinguish_never_raise(rig):
     rig.ign.disarm()
     with pytest.raises(LinkLost):
         rig.ign.arm(timeout=1.0)
+
+
+@pytest.mark.parametrize("phase", ["burning", "trial"])
+def test_keepalive_gap_ends_ignite_disarmed_and_never_rearms(rig, phase):
+    """A host stall longer than the keep-alive timeout (here inside permit()) trips the board: valve
+    shut AND disarmed. ignite() must not re-arm or start a new trial: it ends with the flame off
+    and says why; burning again needs arm()."""
+    rig.ign.arm(timeout=1.0)
+    stalled = []
+    t0 = rig.now()
+
+    def permit() -> bool:
+        ready = rig.ign.state().flame_on if phase == "burning" else rig.now() - t0 > 0.04
+        if ready and not stalled:
+            stalled.append(True)
+            rig.stall(0.15)  # > 80 ms keep-alive timeout
+        return True
+
+    r = rig.ign.ignite(1.0, permit, timeout=3.0)
+    assert stalled and not r.ok and r.reason == "keepalive_timeout", r
+    assert not rig.board.flame_on and not rig.board.valve_open and not rig.board.armed
+    rig.settle()
+    assert not rig.ign.state().armed and not rig.ign.state().flame_on
+    r = rig.ign.ignite(0.2, ALWAYS, timeout=1.0)  # no re-arm behind the caller's back
+    assert not r.ok and r.reason == "not_armed" and not rig.board.valve_open
+    rig.ign.arm(timeout=1.0)
+    assert rig.ign.ignite(0.2, ALWAYS, timeout=2.0).ok
