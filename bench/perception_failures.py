@@ -80,7 +80,7 @@ def evaluate(args) -> dict | None:
             det = DETECT(img, roi.conic)
     lat = time.perf_counter() - t0
     row = {"i": i, "kind": case.kind, "reason": det.reason, "conf": det.confidence, "lat_ms": lat * 1000,
-           "pixel": det.pixel, "method": dbg.get("method")}
+           "pixel": det.pixel, "method": dbg.get("method"), "roundness": dbg.get("roundness")}
     truth_px = None
     if case.kind != "bare":
         w = case.scene.weeds[0]

@@ -835,8 +835,15 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         votes = plant_centre.axis_votes(vi, plant, size)
         n_peaks = plant_centre.vote_peaks(votes, size)
         uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
-    if uv is not None:
-        method = "fan_apex"
+        if uv is not None:
+            method = "fan_apex"
+        elif plant_centre.blade_fraction(plant, size) >= plant_centre.FAN_BLADES:
+            # blades merged by blur or nearly parallel: their axes do not meet in the votes, but
+            # the fan's base is the extremity from which every blade runs straight (most of a
+            # rosette, clover or seedling survives the opening: they never get here)
+            uv = plant_centre.fan_base(plant, size)
+            if uv is not None:
+                method = "fan_base"
     # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin
     # parts meet, then (below) where trefoils point away from, or the middle of the parts
     # arranged round an empty centre; blades and narrow leaves (and round plants where none of
@@ -912,4 +919,5 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
             return None, 0, 0.0
     if debug is not None:
         debug["method"] = method
+        debug["roundness"] = roundness
     return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp
