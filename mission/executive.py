@@ -355,6 +355,11 @@ class Executive:
             self._raise_if_fatal(il.check().reasons + [reason], b.estop)
             if reason == "fuel_empty":
                 raise MissionAborted("igniter: fuel empty")
+            if attempt == 0 and reason in ("keepalive_timeout", "bad_frame"):
+                # the board tripped (a host stall > 80 ms, or a corrupted command frame) and
+                # disarmed itself: arm again for one more trial while the interlock holds
+                self._event("warning", f"{tid}: igniter tripped ({reason}); re-arming for one more trial", target=tid)
+                continue
             if attempt == 0 and reason in ("ignition_failed", "flame_out"):
                 self._event("warning", f"{tid}: resetting the igniter fault ({reason}) for one more trial", target=tid)
                 self.d.igniter.reset_fault(self.timeouts["arm"])

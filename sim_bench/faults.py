@@ -39,6 +39,7 @@ FAULT_KINDS: dict[str, str] = {
     "body_link_loss": "walk",  # body link lost (LinkLost)
     "arm_link_loss": "observe",  # arm link lost / CAN bus-off (LinkLost)
     "igniter_link_loss": "flame",  # igniter link lost while flaming (LinkLost)
+    "igniter_stall": "flame",  # the host stalls params.stall_s (default 0.15 s) mid-hold: no keep-alives, the board trips
     "body_freeze": "walk",  # the body stops answering (timeouts)
 }
 
@@ -177,6 +178,8 @@ class FaultInjector:
             d.arm.hooks.link_lost = True
         elif k == "igniter_link_loss":
             d.igniter.hooks.link_lost = True
+        elif k == "igniter_stall":
+            clock.advance(float(p.get("stall_s", 0.15)))  # the host is descheduled: time passes, no keep-alive
         elif k == "body_freeze":
             d.body.sim.freeze(True)
         return set()

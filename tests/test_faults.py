@@ -71,6 +71,7 @@ EXPECTED = {
     "body_link_loss": (True, False),
     "arm_link_loss": (True, False),
     "igniter_link_loss": (True, False),
+    "igniter_stall": (False, True),
     "body_freeze": (True, False),
 }
 
@@ -110,6 +111,23 @@ def test_persistent_ignition_failure_is_bounded_and_latched(core, tmp_path):
     assert not final["flame_on"]
     trials = [m for m in iter_run(log, topics={"/log"}) if "flame trial" in m.data.message]
     assert len(trials) == 2  # one retry after a reset, then give up
+
+
+def test_igniter_trip_from_a_host_stall_gets_one_rearmed_trial(core, tmp_path):
+    """A 0.15 s host stall mid-hold: the board trips (valve shut, disarmed) and the executive
+    arms once more; a second stall on the retry leaves the target unflamed, never a third trial."""
+    result, final, _, log = run_mission(core, tmp_path, [Fault("igniter_stall", 0)])
+    t = result.targets[0]
+    assert t.flamed and t.flame_s >= core.task.xi - 1e-6
+    msgs = [m.data.message for m in iter_run(log, topics={"/log"})]
+    assert any("flame trial 1 ended: keepalive_timeout" in e for e in msgs), msgs
+    assert any("igniter tripped (keepalive_timeout)" in e for e in msgs)
+    result, final, _, log = run_mission(core, tmp_path / "twice", [Fault("igniter_stall", 0),
+                                                                    Fault("igniter_stall", 0, params={"at_s": 0.6})])
+    t = result.targets[0]
+    assert not t.flamed and t.reason == "flame_failed:keepalive_timeout", t.reason
+    assert not final["flame_on"] and not final["armed"]
+    assert len([m for m in iter_run(log, topics={"/log"}) if "flame trial" in m.data.message]) == 2
 
 
 def test_invariant_checker_catches_a_violation(core, tmp_path):
