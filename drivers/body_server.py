@@ -260,6 +260,9 @@ class BodyServer:
                 self._keepalive_ok = False
                 self._stats["estop_timeouts"] += 1
                 self.backend.keepalive(False)
+            if len(self._checkins) > 64:  # stale ids no longer matter: bounded memory whatever ids clients send
+                old = now - 2 * self.config.estop_timeout_s * 1e9
+                self._checkins = {c: t for c, t in self._checkins.items() if t >= old}
             st = self.backend.poll()
             self._seq += 1
             holder = self.lease_holder
