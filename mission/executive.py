@@ -124,6 +124,8 @@ class Executive:
         self.camera = PinholeCamera.from_config(self.robot.cfg.camera)
         self.detect = detector or detect_centre
         self.total_energy = 0.0
+        self._e_start = 0.0  # total_energy when the current target began (its share is logged)
+        self._last_tf: tuple | None = None  # (t_ns, body pose, joints) of the last /tf written
         self._phase = "idle"
         self._hook_fn = hook
         self._index = 0
@@ -146,11 +148,17 @@ class Executive:
             self.log.event(self.now_ns(), level, msg, **kw)
 
     def _tf(self) -> None:
+        """/tf at this instant (before and after every body and arm move); an identical sample at
+        the same time as the last one is not written again."""
         if self.log:
             try:
-                self.log.transforms(self.now_ns(), self.d.body.state().pose, self.d.arm.state().joints)
+                t, pose, q = self.now_ns(), self.d.body.state().pose, tuple(float(v) for v in self.d.arm.state().joints)
             except DriverError:
-                pass  # no state over a lost link: nothing to draw
+                return  # no state over a lost link: nothing to draw
+            key = (t, pose.as_tuple(), q)
+            if key != self._last_tf:
+                self._last_tf = key
+                self.log.transforms(t, pose, q)
 
     def _ks(self, tid: str, ks: KeyState, note: str = "") -> None:
         if self.log:
@@ -206,8 +214,7 @@ class Executive:
         self._tf()
         c = energy.cost(before, after, self.task, force_move=forced)
         self.total_energy += c
-        if self.log:
-            self.log.energy(self.now_ns(), self.total_energy, self._tid, self._target_energy + c, self._moves + 1)
+        self._log_energy()
         if not r.ok:
             raise _Skip(f"body_motion_failed:{r.reason}")
         err = after.distance(goal)
@@ -221,11 +228,18 @@ class Executive:
             self._tf()
             c2 = energy.cost(after, fixed, self.task)
             self.total_energy += c2
+            self._log_energy()
             c += c2
             if not r.ok or fixed.distance(goal) > tol:
                 raise _Skip(f"body_off_goal:{fixed.distance(goal):.3f}m")
             after = fixed
         return after, c
+
+    def _log_energy(self) -> None:
+        """/energy after every body move: the running total, and the current target's share since
+        it began (what summary.json reports as its energy: retries and corrections included)."""
+        if self.log:
+            self.log.energy(self.now_ns(), self.total_energy, self._tid, self.total_energy - self._e_start, self._moves + 1)
 
     def _walk_target(self, goal: SE2, forced: bool = False) -> SE2:
         """A walk on behalf of the current target: a motion failure gets one more try from where
@@ -235,7 +249,6 @@ class Executive:
         except _Skip:
             self._event("warning", f"{self._tid}: body motion failed, re-trying once", target=self._tid)
             pose, c = self._walk(goal, forced)
-        self._target_energy += c
         self._moves += 1
         return pose
 
@@ -299,6 +312,8 @@ class Executive:
             if self.log:
                 self.log.image(self.now_ns(), frame.image, tid)
             miss = self._take("detector_miss")
+            if miss and self.log:  # one /detection per attempt, also when a fault replaced the detector
+                self.log.detection(self.now_ns(), tid, None, 0.0, "fault_injected", None)
             mpoi = None if miss else self._detect_in(frame.image, T_cam, troi, tid)
             for other in also or []:
                 m = self._detect_in(frame.image, T_cam, other, other.id)
@@ -399,6 +414,7 @@ class Executive:
             return s.ok
 
         self._igniter_state(il)
+        last[0] = self.now_ns()  # that sample is the hold's first: permit() logs from 50 ms on
         try:
             return self.d.igniter.ignite(self.task.xi, permit, timeout=self.task.xi + 10.0)
         finally:
@@ -409,7 +425,7 @@ class Executive:
     def _target(self, i: int, n: int, troi: TROI, x_kmax: SE2, res: TargetResult) -> None:
         tid = troi.id
         self._tid = tid
-        self._target_energy = 0.0
+        self._e_start = self.total_energy
         self._moves = 0
         here = self.d.body.state().pose
         self._set_phase(i, n, tid, "plan")
@@ -492,7 +508,7 @@ class Executive:
         and a target whose MPOI is already known has no observation stop."""
         fp = self.planner
         troi, tid = plan.troi, plan.troi.id
-        self._tid, self._target_energy, self._moves = tid, 0.0, 0
+        self._tid, self._moves, self._e_start = tid, 0, self.total_energy
         res.p_upper, res.expected_energy = plan.p_upper, plan.expected_cost
         if self.log:
             self.log.plan(self.now_ns(), tid, plan)
@@ -552,13 +568,15 @@ class Executive:
                     self._stow()
                 except _Skip:
                     pass
+            finally:  # also when the mission aborts on this target: what it spent is reported
+                res.energy = self.total_energy - e0
+                res.body_moves = self._moves
             fp.done(tid, res.flamed)
-            res.energy = self.total_energy - e0
-            res.body_moves = self._moves
             i += 1
         here = self.d.body.state().pose
         if here.distance(self.end) > self.robot.cfg.body.position_tolerance:
             self._set_phase(i, len(results), "-", "walk to end")
+            self._tid, self._moves, self._e_start = "", 0, self.total_energy
             self._walk(self.end)
         return order
 
@@ -580,7 +598,7 @@ class Executive:
                 if t.id in self.truth:
                     self.log.truth_mpoi(self.now_ns(), t.id, tuple(self.truth[t.id]))
         self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
-        self._tid, self._target_energy, self._moves = "", 0.0, 0
+        self._tid, self._moves, self._e_start = "", 0, 0.0
         aborted = None
         try:
             self._check_startup()
@@ -610,8 +628,9 @@ class Executive:
                         self._stow()
                     except _Skip:
                         pass
-                res.energy = self.total_energy - e0
-                res.body_moves = self._moves
+                finally:  # also when the mission aborts on this target: what it spent is reported
+                    res.energy = self.total_energy - e0
+                    res.body_moves = self._moves
         except (LinkLost, EStopActive, MissionAborted) as e:
             aborted = f"{type(e).__name__}: {e}"
         except DriverError as e:

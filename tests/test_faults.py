@@ -130,6 +130,27 @@ def test_igniter_trip_from_a_host_stall_gets_one_rearmed_trial(core, tmp_path):
     assert len([m for m in iter_run(log, topics={"/log"}) if "flame trial" in m.data.message]) == 2
 
 
+def test_log_accounts_for_retries_corrections_and_injected_misses(core, tmp_path):
+    """The log agrees with the summary whatever the faults: each target's last /energy share is
+    its reported energy (a failed walk's retry and a slip correction included), the last total
+    is the mission's; every detection attempt has a /detection (an injected miss too); no
+    /igniter/state sample is written twice."""
+    trois = [TROI(1.0, 0.3, 0.22, "A"), TROI(2.0, -0.2, 0.22, "B"), TROI(3.0, 0.3, 0.22, "C")]
+    faults = [Fault("motion_failure", 0), Fault("slip", 1), Fault("detector_miss", 2)]
+    result, _, inj, log = run_mission(core, tmp_path, faults, trois=trois)
+    assert {f[0] for f in inj.fired} == {"motion_failure", "slip", "detector_miss"}
+    msgs = list(iter_run(log, topics={"/energy", "/detection", "/igniter/state", "/camera/image"}))
+    energy = [m.data for m in msgs if m.topic == "/energy"]
+    assert abs(energy[-1].total - result.total_energy) < 1e-9
+    for t in result.targets:
+        last = [e for e in energy if e.target_id == t.id][-1]
+        assert abs(last.target_energy - t.energy) < 1e-9, (t.id, last.target_energy, t.energy)
+    assert sum(m.topic == "/detection" for m in msgs) >= sum(m.topic == "/camera/image" for m in msgs)
+    assert any(m.topic == "/detection" and m.data.reason == "fault_injected" for m in msgs)
+    ign = [(m.log_time, m.data.SerializeToString()) for m in msgs if m.topic == "/igniter/state"]
+    assert len(ign) == len(set(ign)) > 0
+
+
 def test_invariant_checker_catches_a_violation(core, tmp_path):
     """The checker must be able to fail: a log with the flame left on after a denial."""
     robot = core.robot
