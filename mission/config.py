@@ -13,10 +13,11 @@ import io
 import json
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
+import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from capm_field.config import RobotConfig, TaskConfig
 from capm_field.errors import UserError
@@ -24,6 +25,19 @@ from capm_field.geometry import SE2
 from capm_field.keystates import TROI
 
 PLANNER_NAMES = ("a", "b", "c", "cstar", "field")
+FIELD_EXTENT = 10_000.0  # m: |x|, |y| of any pose or TROI (field-frame metres; lon/lat or mm are not)
+LEG_MARGIN = 0.8  # a leg of the visit may take at most this share of the body's move timeout
+
+
+def _not_bool(v: Any) -> Any:
+    # YAML 1.1 reads yes/no/on/off as booleans, which pydantic would take as 1.0 / 0.0
+    if isinstance(v, bool):
+        raise ValueError("a number is needed, not a yes/no value")
+    return v
+
+
+Real = Annotated[float, BeforeValidator(_not_bool)]
+Coord = Annotated[float, BeforeValidator(_not_bool), Field(ge=-FIELD_EXTENT, le=FIELD_EXTENT)]
 
 
 class MissionError(UserError):
@@ -39,9 +53,9 @@ class _Strict(BaseModel):
 
 
 class Pose(_Strict):
-    x: float
-    y: float
-    yaw: float = 0.0
+    x: Coord  # field frame, m
+    y: Coord
+    yaw: Real = Field(0.0, description="rad")
 
     def se2(self) -> SE2:
         return SE2(self.x, self.y, self.yaw)
@@ -49,9 +63,9 @@ class Pose(_Strict):
 
 class TroiSpec(_Strict):
     id: str | None = None
-    x: float
-    y: float
-    r: float = Field(gt=0.0, le=0.5, description="TROI radius r_w (m)")
+    x: Coord
+    y: Coord
+    r: Real = Field(gt=0.0, le=0.5, description="TROI radius r_w (m)")
 
 
 class FieldSpec(_Strict):
@@ -76,7 +90,7 @@ class FaultSpec(_Strict):
 
 class BenchDrivers(_Strict):
     kind: Literal["bench"]
-    seed: int = 0
+    seed: int = Field(0, ge=0)
     transport: Literal["inprocess", "wire"] = Field("inprocess", description="in-process sim, or real adapters over loopback")
     faults: list[FaultSpec] | str = Field(default_factory=list, description="list, or 'random:SEED'")
     mpoi_in_troi: bool = Field(True, description="true MPOIs are drawn from N(X_w, Σ_w) restricted to the TROI")
@@ -253,7 +267,41 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
     if problems:
         raise MissionError(problems)
     trois = _trois(mission, path, lines)
+    _check_plan(mission, trois, path, lines)
     return mission, trois
+
+
+def _check_plan(mission: Mission, trois: list[TROI], path: Path, lines: dict[tuple, int]) -> None:
+    """What the schema cannot see but a run would only find out on the way: a bench fault
+    schedule that does not parse, and a walk longer than the body can cover within its move
+    timeout (coordinates in the wrong unit or frame, e.g. GeoJSON in lon/lat: the mission would
+    flame the first targets, then abort on a move timeout)."""
+    problems: list[str] = []
+    if mission.drivers.kind == "bench" and mission.drivers.faults:
+        from sim_bench.faults import parse_faults
+
+        try:
+            faults = parse_faults(mission.drivers.faults, len(trois))
+        except UserError as e:
+            problems.append(f"{path}:{_line_for(lines, ('drivers', 'faults')) or '?'}: drivers.faults: {str(e).removeprefix('--faults: ')}")
+        else:
+            if faults and mission.drivers.transport != "inprocess":
+                problems.append(f"{path}:{_line_for(lines, ('drivers', 'faults')) or '?'}: drivers.faults: fault schedules "
+                                "run on the in-process bench (transport: inprocess)")
+    from .ordering import order_trois
+
+    start, end = mission.start.se2(), mission.end_pose()
+    stops = [("start", start.xy)] + [(t.id, np.asarray(t.xy)) for t in order_trois(trois, start.xy, end.xy)] + [("end", end.xy)]
+    max_leg = LEG_MARGIN * mission.robot.body.max_speed * mission.timeouts.get("body", 60.0)
+    for (a, pa), (b, pb) in zip(stops, stops[1:]):
+        d = float(np.hypot(*(np.asarray(pb, float) - np.asarray(pa, float))))
+        if d > max_leg:
+            problems.append(f"{path}: field: the walk from {a} to {b} is {d:.1f} m, more than the body covers in "
+                            f"{LEG_MARGIN:.0%} of timeouts.body ({max_leg:.0f} m at {mission.robot.body.max_speed} m/s): "
+                            "coordinates must be field-frame metres (a GeoJSON prescan in lon/lat?); for a longer walk raise timeouts.body")
+            break
+    if problems:
+        raise MissionError(problems)
 
 
 def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
@@ -332,6 +380,8 @@ def _is_number(v: Any) -> bool:
 
 
 def _checked_troi(src: Path, line: int | None, x: float, y: float, r: float, tid: str, problems: list[str], where: str = "") -> TROI:
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(r)) or not 0 < r <= 0.5:
-        problems.append(f"{src}:{line or '?'}: {where + ': ' if where else ''}radius must be in (0, 0.5] m and coordinates finite (got x={x}, y={y}, r={r})")
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(r)) or not 0 < r <= 0.5 \
+            or max(abs(x), abs(y)) > FIELD_EXTENT:
+        problems.append(f"{src}:{line or '?'}: {where + ': ' if where else ''}radius must be in (0, 0.5] m and "
+                        f"coordinates finite field-frame metres within ±{FIELD_EXTENT:.0f} (got x={x}, y={y}, r={r})")
     return TROI(x, y, r, tid)

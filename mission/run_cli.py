@@ -12,6 +12,7 @@ import importlib
 import json
 import logging
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -27,31 +28,45 @@ def _validate_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def check_hardware_files(mission: Mission, mission_path: str | Path) -> None:
+    """The files a hardware run opens first: the zenoh config and what it names (TLS certificates
+    and keys), resolved as the run resolves them; MissionError (exit 2) for a bad one. `validate`
+    and `run` both call it, `run` before any driver opens."""
+    zspec = getattr(mission.drivers, "zenoh", None)
+    if zspec is None or not zspec.config_file:
+        return
+    from drivers.body_protocol import load_config_file
+    from drivers.zenoh_body import ZenohBodyConfig
+
+    zcfg = zspec.config_file
+    try:
+        load_config_file(ZenohBodyConfig.from_spec(zspec, Path(mission_path).resolve().parent).link.config_file)
+    except Exception as e:  # noqa: BLE001 - zenoh's parse errors are plain exceptions
+        msg = " ".join(str(e).split())
+        msg = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", msg)  # zenoh's messages name its Rust source file
+        raise MissionError([f"{mission_path}: drivers.zenoh.config_file {zcfg}: {msg[:300] or type(e).__name__}"]) from e
+
+
 def validate_main(argv: list[str]) -> int:
     a = _validate_parser().parse_args(argv)
     mission, trois = load_mission(a.mission)
-    kind = mission.drivers.kind
-    zspec = getattr(mission.drivers, "zenoh", None)
-    if zspec is not None and zspec.config_file:
-        # the files a hardware run would open first: the zenoh config and what it names (TLS
-        # certificates and keys), resolved as the run resolves them; a bad one is found here
-        from drivers.body_protocol import load_config_file
-        from drivers.zenoh_body import ZenohBodyConfig
-
-        zcfg = zspec.config_file
-        try:
-            load_config_file(ZenohBodyConfig.from_spec(zspec, Path(a.mission).resolve().parent).link.config_file)
-        except Exception as e:  # noqa: BLE001 - zenoh's parse errors are plain exceptions
-            raise MissionError([f"{a.mission}: drivers.zenoh.config_file {zcfg}: {' '.join(str(e).split())[:300] or type(e).__name__}"]) from e
-    print(f"{a.mission}: ok — {len(trois)} TROIs, planner {mission.planner}, drivers {kind}")
+    check_hardware_files(mission, a.mission)
+    print(f"{a.mission}: ok — {len(trois)} TROIs, planner {mission.planner}, drivers {mission.drivers.kind}")
     return 0
+
+
+def _seed(v: str) -> int:
+    n = int(v)
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"must be ≥ 0 (got {n})")
+    return n
 
 
 def _run_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="capm-field run", description=__doc__.split("\n")[0])
     ap.add_argument("mission", help="mission YAML file")
     ap.add_argument("--out", help="output directory (default: the mission's output.dir)")
-    ap.add_argument("--seed", type=int, help="bench seed (overrides drivers.seed)")
+    ap.add_argument("--seed", type=_seed, help="bench seed ≥ 0 (overrides drivers.seed)")
     ap.add_argument("--faults", help="bench fault schedule: 'random:SEED' or KIND@TARGET[,KIND@TARGET...]")
     ap.add_argument("--quiet", action="store_true", help="no progress line")
     ap.add_argument("--force", action="store_true", help="overwrite run.mcap/summary.json already in the output directory")
@@ -95,6 +110,17 @@ def _open_drivers(mission: Mission, robot, trois, seed: int | None, mission_dir:
 def main(argv: list[str]) -> int:
     a = _run_parser().parse_args(argv)
     mission, trois = load_mission(a.mission)
+    check_hardware_files(mission, a.mission)
+    faults = []
+    if mission.drivers.kind == "bench":
+        from sim_bench.faults import parse_faults
+
+        faults = parse_faults(a.faults if a.faults is not None else mission.drivers.faults, len(trois))  # before anything is written
+        if faults and mission.drivers.transport != "inprocess":
+            raise UserError("drivers.faults: fault schedules run on the in-process bench (transport: inprocess); "
+                            "wire-level faults are exercised by the driver tests")
+    elif a.faults or a.seed is not None:
+        raise UserError("--faults and --seed apply to bench missions only (drivers.kind: bench)")
     out = Path(a.out or mission.output.dir)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out: {out} exists and is not a directory")
@@ -145,26 +171,11 @@ def main(argv: list[str]) -> int:
     progress = _Progress(not quiet)
     hook = None
     if world is not None:
-        from sim_bench.faults import FaultInjector, parse_faults
+        from sim_bench.faults import FaultInjector
 
-        spec = a.faults if a.faults is not None else mission.drivers.faults
-        try:
-            faults = parse_faults(spec, len(trois))
-        except UserError:
-            drivers.close()
-            log.close()
-            raise
-        if faults and getattr(world, "transport", "inprocess") != "inprocess":
-            drivers.close()
-            log.close()
-            raise UserError("drivers.faults: fault schedules run on the in-process bench (transport: inprocess); wire-level faults are exercised by the driver tests")
         if faults:
             injector = FaultInjector(faults, drivers, log_event=lambda lvl, msg: log.event(now_ns(), lvl, msg))
             hook = injector.on
-    elif a.faults:
-        drivers.close()
-        log.close()
-        raise UserError("--faults applies to bench missions only")
     # warnings and errors of the software's Python loggers go to the console and into the run log
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     to_runlog = RunLogHandler(log, now_ns)

@@ -62,6 +62,14 @@ def test_good_minimal_mission_has_paper_defaults(tmp_path):
         ("field: [\n", ["YAML syntax error"]),
         ("- a\n- b\n", ["must be a mapping"]),
         (GOOD.replace("start: {x: 0, y: 0}\n", ""), ["start: Field required"]),
+        # found by a field-engineer audit of the docs: each was accepted, then failed mid-run
+        (GOOD.replace("x: 1.0", "x: yes"), [":3: field.trois.0.x: a number is needed, not a yes/no value"]),
+        (GOOD.replace("x: 1.0", "x: 1.0e+308"), [":3: field.trois.0.x: Input should be less than or equal to 10000"]),
+        (GOOD.replace("seed: 3", "seed: -1"), [":5: drivers.seed: Input should be greater than or equal to 0"]),
+        (GOOD.replace("x: 1.0, y: 2.0", "x: 8.54, y: 47.38"),  # lon/lat read as metres: a 48 m walk
+         ["field: the walk from start to T00 is 48.1 m, more than the body covers"]),
+        (GOOD.replace("seed: 3}", "seed: 3, faults: 'meteor@0'}"), [":5: drivers.faults: fault kind 'meteor' unknown"]),
+        (GOOD.replace("seed: 3}", "seed: 3, faults: 'slip@4'}"), [":5: drivers.faults: fault slip: target index 4 outside 0..0"]),
     ],
 )
 def test_bad_missions_name_key_path_and_line(tmp_path, text, expect):
@@ -186,6 +194,27 @@ def test_unusable_output_paths_and_summaries_are_clear_errors(tmp_path):
         r = subprocess.run(CLI + ["bench-mission", str(p), "--summary", str(tmp_path / "s.json")], capture_output=True, text=True)
         assert r.returncode == 2 and "is not a capm-field run's summary.json" in r.stderr and "Traceback" not in r.stderr
         assert "bench: energy" not in r.stdout
+
+
+def test_run_refuses_bad_faults_seeds_and_configs_before_writing_anything(tmp_path):
+    """A bad --faults or --seed is refused before the output exists (a leftover run.mcap used to
+    block the corrected run); a hardware mission's zenoh config is checked by `run` as by
+    `validate`, before any driver opens (was: exit 1 from the CAN bus, config never checked)."""
+    p = _write(tmp_path, GOOD)
+    for extra, msg in ((["--faults", "meteor@0"], "fault kind 'meteor' unknown"), (["--seed", "-1"], "must be ≥ 0")):
+        out = tmp_path / "out"
+        r = subprocess.run(CLI + ["run", str(p), "--out", str(out), "--quiet"] + extra, capture_output=True, text=True)
+        assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert not out.exists()
+    text = (EXAMPLES / "hardware_template.yaml").read_text().replace("prescan: prescan.csv", "trois: [{x: 1, y: 1, r: 0.2}]")
+    hw = _write(tmp_path, text, "hw.yaml")
+    (tmp_path / "zenoh-client.json5").write_text("{ not json5 [[[")
+    out = tmp_path / "hwout"
+    r = subprocess.run(CLI + ["run", str(hw), "--out", str(out), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2 and "drivers.zenoh.config_file" in r.stderr and ".rs:" not in r.stderr, r.stderr
+    assert not out.exists()
+    r = subprocess.run(CLI + ["run", str(hw), "--out", str(out), "--quiet", "--seed", "1"], capture_output=True, text=True)
+    assert r.returncode == 2 and not out.exists()
 
 
 def test_validate_opens_the_zenoh_config_of_a_hardware_mission(tmp_path):
