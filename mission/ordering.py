@@ -22,24 +22,39 @@ def _length(pts: np.ndarray, order: list[int], start: np.ndarray, end: np.ndarra
 def order_trois(trois: list[TROI], start_xy: np.ndarray, end_xy: np.ndarray, max_rounds: int = 50) -> list[TROI]:
     if len(trois) <= 1:
         return list(trois)
-    pts = np.array([t.xy for t in trois])
-    left = set(range(len(trois)))
+    pts = np.array([t.xy for t in trois], float)
+    n = len(trois)
+    # nearest neighbour from the start (ties: the lower index)
+    left = np.ones(n, bool)
     order: list[int] = []
     cur = np.asarray(start_xy, float)
-    while left:
-        nxt = min(left, key=lambda i: (float(np.linalg.norm(pts[i] - cur)), i))
+    for _ in range(n):
+        d = np.where(left, np.hypot(*(pts - cur).T), np.inf)
+        nxt = int(np.argmin(d))
         order.append(nxt)
-        left.remove(nxt)
+        left[nxt] = False
         cur = pts[nxt]
-    best = _length(pts, order, start_xy, end_xy)
+    # 2-opt, first improvement in (i, j) scan order: reversing order[i..j] changes the path
+    # length by d(P[i-1], P[j]) + d(P[i], P[j+1]) − d(P[i-1], P[i]) − d(P[j], P[j+1]) on the path
+    # P = start, order…, end — evaluated for every j at once (O(n²) per round, not O(n³))
+    s0, e0 = np.asarray(start_xy, float), np.asarray(end_xy, float)
     for _ in range(max_rounds):
         improved = False
-        for i in range(len(order) - 1):
-            for j in range(i + 1, len(order)):
-                cand = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
-                L = _length(pts, cand, start_xy, end_xy)
-                if L < best - 1e-12:
-                    order, best, improved = cand, L, True
+        for i in range(n - 1):
+            j0 = i + 1
+            while j0 < n:
+                P = np.vstack([s0, pts[order], e0])  # path index k ↔ order[k - 1]
+                a, b = P[i], P[i + 1]  # P[i-1] and P[i] in path terms (order index i is path i + 1)
+                js = np.arange(j0, n)
+                c, dd = P[js + 1], P[js + 2]
+                delta = np.hypot(*(a - c).T) + np.hypot(*(b - dd).T) - np.hypot(*(a - b)) - np.hypot(*(c - dd).T)
+                hit = np.flatnonzero(delta < -1e-12)
+                if len(hit) == 0:
+                    break
+                j = int(js[hit[0]])
+                order = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+                improved = True
+                j0 = j + 1
         if not improved:
             break
     return [trois[i] for i in order]
