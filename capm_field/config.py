@@ -114,7 +114,7 @@ class TaskConfig(_Frozen):
     delta: float = Field(0.15, gt=0.0, le=1.0, description="δ: min projected-TROI area / image area (NSV resolution)")
     eps_min: float = Field(0.05, ge=0.0, description="ε_min: min ‖X_e − X̄_w‖² (m²) for EPMC")
     eps_max: float = Field(0.10, gt=0.0, description="ε_max: max ‖X_e − X̄_w‖² (m²) for EPMC")
-    xi: float = Field(3.0, gt=0.0, description="ξ: flame hold time for MTC (s)")
+    xi: float = Field(3.0, gt=0.0, le=60.0, description="ξ: flame hold time for MTC (s); a minute is beyond any weed")
     gamma: float = Field(2.0, ge=0.0, description="γ: energy per unit distance d")
     beta: float = Field(0.0, ge=0.0, description="β: weight of the orientation term in d (paper: not given)")
     distance_form: Literal["squared", "euclidean"] = Field(

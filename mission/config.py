@@ -232,7 +232,7 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
     """Parse and validate a mission file; returns the mission and its TROIs (listed or prescan)."""
     path = Path(path)
     if not path.is_file():
-        raise MissionError([f"{path}: mission file not found"])
+        raise MissionError([f"{path}: {'is a directory, not a mission file' if path.is_dir() else 'mission file not found' if not path.exists() else 'not a regular file'}"])
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
@@ -309,7 +309,18 @@ def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
         src = (path.parent / mission.field.prescan).resolve()
         trois = load_prescan(src)
     else:
-        trois = [TROI(t.x, t.y, t.r, t.id or f"T{i:02d}") for i, t in enumerate(mission.field.trois)]
+        # an entry without id is T<index in the file>, unless another entry is given that id
+        used = {t.id for t in mission.field.trois if t.id}
+        trois = []
+        for i, t in enumerate(mission.field.trois):
+            tid = t.id
+            if not tid:
+                k = i
+                while f"T{k:02d}" in used:
+                    k += 1
+                tid = f"T{k:02d}"
+                used.add(tid)
+            trois.append(TROI(t.x, t.y, t.r, tid))
     if not trois:
         raise MissionError([f"{path}:{_line_for(lines, ('field',)) or '?'}: field: no TROIs (list field.trois or give field.prescan)"])
     ids = [t.id for t in trois]
@@ -322,7 +333,7 @@ def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
 def load_prescan(src: Path) -> list[TROI]:
     """TROIs from a prescan file: CSV (x,y,r[,id]) or GeoJSON (Point features with radius|r)."""
     if not src.is_file():
-        raise MissionError([f"{src}: prescan file not found"])
+        raise MissionError([f"{src}: {'is a directory, not a prescan file' if src.is_dir() else 'prescan file not found' if not src.exists() else 'not a regular file'}"])
     problems: list[str] = []
     out: list[TROI] = []
     suffix = src.suffix.lower()

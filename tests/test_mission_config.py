@@ -233,3 +233,12 @@ def test_validate_opens_the_zenoh_config_of_a_hardware_mission(tmp_path):
     (tmp_path / "zenoh-client.json5").write_text("{}")
     r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
+
+
+def test_generated_ids_never_collide_and_directories_are_named(tmp_path):
+    text = "field:\n  trois:\n    - {x: 1.0, y: 2.0, r: 0.2}\n    - {id: T00, x: 2.0, y: 2.0, r: 0.2}\nstart: {x: 0, y: 0}\ndrivers: {kind: bench}\n"
+    _, trois = load_mission(_write(tmp_path, text))
+    assert [t.id for t in trois] == ["T01", "T00"]
+    (tmp_path / "d.yaml").mkdir()
+    with pytest.raises(MissionError, match="is a directory, not a mission file"):
+        load_mission(tmp_path / "d.yaml")
