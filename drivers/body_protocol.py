@@ -11,6 +11,7 @@ import json
 import math
 import os
 import re
+import ssl
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -241,7 +242,35 @@ def load_config_file(path: str | os.PathLike):  # -> zenoh.Config
             cfg.insert_json5(key, json.dumps(str(f)))
         if not f.is_file():
             raise FileNotFoundError(f"{p}: {key.replace('/', '.')} names a missing file: {f}")
+        _check_pem(p, key, f)
+    for side in ("listen", "connect"):  # a key that does not match its certificate fails every handshake
+        cert, key = (json.loads(cfg.get_json(f"transport/link/tls/{side}_{k}")) for k in ("certificate", "private_key"))
+        if isinstance(cert, str) and cert and isinstance(key, str) and key:
+            try:
+                ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(cert, key)
+            except (ssl.SSLError, OSError) as e:
+                raise ValueError(f"{p}: transport.link.tls.{side}_private_key {key} does not go with "
+                                 f"{side}_certificate {cert} ({e.__class__.__name__}: {e})") from None
     return cfg
+
+
+def _check_pem(cfg_path: Path, key: str, f: Path) -> None:
+    """A certificate or key file named by the config must be PEM of that kind (a text file with
+    anything else in it only fails at the first TLS handshake, on the robot)."""
+    if not key.startswith("transport/link/tls/"):
+        return
+    what = key.rsplit("/", 1)[-1].replace("_", " ")
+    text = f.read_bytes()
+    if key.endswith("certificate"):
+        m = re.search(rb"-----BEGIN CERTIFICATE-----.+?-----END CERTIFICATE-----", text, re.S)
+        try:
+            ssl.PEM_cert_to_DER_cert(m.group(0).decode("ascii")) if m else None
+        except (ValueError, UnicodeDecodeError):
+            m = None
+        if not m:
+            raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} is not a PEM certificate ({what})")
+    elif not re.search(rb"-----BEGIN [A-Z ]*PRIVATE KEY-----", text):
+        raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} is not a PEM private key ({what})")
 
 
 def link_security(cfg) -> dict[str, Any]:

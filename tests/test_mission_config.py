@@ -242,3 +242,26 @@ def test_generated_ids_never_collide_and_directories_are_named(tmp_path):
     (tmp_path / "d.yaml").mkdir()
     with pytest.raises(MissionError, match="is a directory, not a mission file"):
         load_mission(tmp_path / "d.yaml")
+
+
+def test_validate_reads_the_tls_files_a_hardware_mission_names(tmp_path):
+    """Certificates and keys must be PEM of their kind and each key must go with its certificate:
+    otherwise every TLS handshake on the robot would fail, found only there (was: 'ok' when the
+    files merely existed)."""
+    from sim_bench.dev_pki import make_dev_pki
+
+    make_dev_pki(tmp_path / "certs", clients=("capm-commander", "capm-observer"))
+    text = (EXAMPLES / "hardware_template.yaml").read_text().replace("prescan: prescan.csv", "trois: [{x: 1, y: 1, r: 0.2}]")
+    p = _write(tmp_path, text)
+    cfg = tmp_path / "zenoh-client.json5"
+    cfg.write_text((EXAMPLES / "zenoh-client.json5").read_text())
+    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    good = (tmp_path / "certs" / "capm-commander.key").read_bytes()
+    (tmp_path / "certs" / "capm-commander.key").write_bytes((tmp_path / "certs" / "capm-observer.key").read_bytes())
+    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2 and "does not go with" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    (tmp_path / "certs" / "capm-commander.key").write_bytes(good)
+    (tmp_path / "certs" / "ca.pem").write_text("this is not a certificate\n")
+    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2 and "is not a PEM certificate" in r.stderr, r.stderr
