@@ -26,6 +26,7 @@ from capm_field.keystates import TROI
 
 PLANNER_NAMES = ("a", "b", "c", "cstar", "field")
 FIELD_EXTENT = 10_000.0  # m: |x|, |y| of any pose or TROI (field-frame metres; lon/lat or mm are not)
+MAX_MISSION_BYTES = 4 * 2**20
 LEG_MARGIN = 0.8  # a leg of the visit may take at most this share of the body's move timeout
 
 
@@ -234,6 +235,10 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
     if not path.is_file():
         raise MissionError([f"{path}: {'is a directory, not a mission file' if path.is_dir() else 'mission file not found' if not path.exists() else 'not a regular file'}"])
     try:
+        size = path.stat().st_size
+        if size > MAX_MISSION_BYTES:  # a mission is a few kB; long TROI lists belong in a prescan file
+            raise MissionError([f"{path}: {size / 2**20:.0f} MiB is not a mission file (limit {MAX_MISSION_BYTES // 2**20} MiB; "
+                                "put long TROI lists in field.prescan)"])
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
         raise MissionError([f"{path}: cannot read: {e}"]) from e

@@ -265,3 +265,9 @@ def test_validate_reads_the_tls_files_a_hardware_mission_names(tmp_path):
     (tmp_path / "certs" / "ca.pem").write_text("this is not a certificate\n")
     r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
     assert r.returncode == 2 and "is not a PEM certificate" in r.stderr, r.stderr
+
+
+def test_huge_mission_file_is_refused_at_once(tmp_path):
+    p = _write(tmp_path, GOOD + "#" * (5 * 2**20) + "\n")
+    with pytest.raises(MissionError, match="MiB is not a mission file"):
+        load_mission(p)
