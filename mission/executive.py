@@ -346,6 +346,7 @@ class Executive:
         latched); a pushed body gets one re-solved flame pose; an E-stop or an empty tank aborts."""
         reason = "?"
         for attempt in range(2):
+            self._hook("flame", 0.0)  # a trial begins: faults meant for the flame pose strike before it is solved
             sol = None if self._take("ik_fail") else flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi))
             if sol is None:
                 raise _Skip("no_flame_pose")

@@ -134,7 +134,7 @@ class FaultInjector:
         for f in self.faults:
             if f.fired or f.target != target or f.trigger_phase != phase:
                 continue
-            at_s = float(f.params.get("at_s", 0.0 if f.kind == "ignition_failure" else 0.5))
+            at_s = float(f.params.get("at_s", 0.0 if f.kind in ("ignition_failure", "ik_failure") else 0.5))
             if phase == "flame" and elapsed_s < at_s:
                 continue  # mid-hold faults strike once the flame has been on a while
             f.fired = True

@@ -151,6 +151,16 @@ def test_log_accounts_for_retries_corrections_and_injected_misses(core, tmp_path
     assert len(ign) == len(set(ign)) > 0
 
 
+def test_ik_failure_at_the_flame_pose_skips_the_target(core, tmp_path):
+    """docs/faults.md: an IK failure for the flame pose skips the target (it used to strike
+    mid-hold, after the pose was solved, and change nothing)."""
+    result, final, inj, _ = run_mission(core, tmp_path, [Fault("ik_failure", 0, phase="flame")])
+    assert inj.fired == [("ik_failure", 0, "flame")]
+    t = result.targets[0]
+    assert not t.flamed and t.reason == "no_flame_pose", t.reason
+    assert not final["flame_on"] and not final["armed"]
+
+
 def test_invariant_checker_catches_a_violation(core, tmp_path):
     """The checker must be able to fail: a log with the flame left on after a denial."""
     robot = core.robot
