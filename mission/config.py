@@ -110,7 +110,7 @@ class ZenohSpec(_Strict):
 class CanSpec(_Strict):
     interface: str = "socketcan"
     channel: str = "can0"
-    bitrate: int = 1_000_000
+    bitrate: int = Field(1_000_000, gt=0, le=1_000_000, description="classic CAN: ≤ 1 Mbit/s")
 
 
 class CameraSpec(_Strict):

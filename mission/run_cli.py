@@ -51,8 +51,26 @@ def validate_main(argv: list[str]) -> int:
     a = _validate_parser().parse_args(argv)
     mission, trois = load_mission(a.mission)
     check_hardware_files(mission, a.mission)
+    out = Path(mission.output.dir)
+    if out.exists() and not out.is_dir():
+        raise MissionError([f"{a.mission}: output.dir: {out} exists and is not a directory"])
     print(f"{a.mission}: ok — {len(trois)} TROIs, planner {mission.planner}, drivers {mission.drivers.kind}")
+    for w in _link_warnings(mission):
+        print(f"{a.mission}: warning: {w}", file=sys.stderr)
     return 0
+
+
+def _link_warnings(mission: Mission) -> list[str]:
+    """A hardware mission that would talk to the robot off this machine without TLS: allowed (a
+    lab network), but docs/security.md asks for mutual TLS and the robot side refuses it unless
+    started with --insecure."""
+    z = getattr(mission.drivers, "zenoh", None)
+    if z is None or z.config_file:
+        return []
+    from drivers.body_protocol import is_loopback_endpoint
+
+    off = [e for e in list(z.connect) + list(z.listen) if not is_loopback_endpoint(e)]
+    return [f"drivers.zenoh: {', '.join(off)} without a config_file: no TLS, no authentication (docs/security.md)"] if off else []
 
 
 def _seed(v: str) -> int:

@@ -271,3 +271,15 @@ def test_huge_mission_file_is_refused_at_once(tmp_path):
     p = _write(tmp_path, GOOD + "#" * (5 * 2**20) + "\n")
     with pytest.raises(MissionError, match="MiB is not a mission file"):
         load_mission(p)
+
+
+def test_validate_warns_of_an_unprotected_robot_link_and_checks_output_and_bitrate(tmp_path):
+    hw = "field: {trois: [{x: 1, y: 1, r: 0.2}]}\nstart: {x: 0, y: 0}\ndrivers:\n  kind: hardware\n" \
+         "  zenoh: {connect: ['tcp/10.0.0.1:7447']}\n  can: {interface: virtual, channel: c0, bitrate: BR}\n"
+    r = subprocess.run(CLI + ["validate", str(_write(tmp_path, hw.replace("BR", "500000")))], capture_output=True, text=True)
+    assert r.returncode == 0 and "warning: drivers.zenoh: tcp/10.0.0.1:7447 without a config_file: no TLS" in r.stderr, r.stderr
+    r = subprocess.run(CLI + ["validate", str(_write(tmp_path, hw.replace("BR", "-5")))], capture_output=True, text=True)
+    assert r.returncode == 2 and "drivers.can.bitrate" in r.stderr
+    (tmp_path / "afile").write_text("x")
+    r = subprocess.run(CLI + ["validate", str(_write(tmp_path, GOOD + "output: {dir: afile}\n"))], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 2 and "output.dir" in r.stderr and "not a directory" in r.stderr
