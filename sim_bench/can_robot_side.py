@@ -9,7 +9,7 @@ Each node validates what it receives with its own `Receiver`: rejected frames â€
 ids, every 29-bit frame, remote/error frames, wrong DLC, bad checksum, bad counter â€” are counted
 in that node's RxRejected by both nodes alike and never acted on; a rejected IGN_CMD while the
 valve is open also shuts it and disarms the board. The gateway joins ARM_TARGET_A/B with
-`SetPairer` (the B must follow its A directly, within 10 ms; an unpaired B is counted as 'pair').
+`SetPairer` (the B must follow its A directly, within 30 ms; an unpaired B is counted as 'pair').
 Both consume the host heartbeats (arm: latched HOST_LOST fault; igniter: valve shut + disarmed)
 and produce their own.
 

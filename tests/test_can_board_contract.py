@@ -1,7 +1,7 @@
 """Board and gateway contract details of docs/protocols/can.md that a third-party client relies
 on: the igniter trips (valve shut AND disarmed) on a keep-alive gap or a rejected command while
 the valve is open, and resumed keep-alives never re-light it; ARM_TARGET/ARM_STATE halves pair
-only when B directly follows its A within 10 ms; both nodes count unknown and 29-bit ids alike;
+only when B directly follows its A within 30 ms (PAIR_WINDOW_S); both nodes count unknown and 29-bit ids alike;
 targets while DISABLED are ignored and not counted; RESET_FAULT works without the host
 heartbeat, ENABLE does not; a non-operational host heartbeat is a lost host.
 

@@ -250,7 +250,7 @@ class Receiver:
 
 
 # ---- joint sets split over two frames -------------------------------------------------------
-PAIR_WINDOW_S = 0.010
+PAIR_WINDOW_S = 0.030  # a host thread can lose the GIL for a few 5 ms switch intervals between A and B
 
 
 class SetPairer:
