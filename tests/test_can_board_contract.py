@@ -10,6 +10,7 @@ host (`RawHost`), waiting on conditions with generous deadlines (2 loaded cores)
 
 from __future__ import annotations
 
+import math
 import time
 
 import can
@@ -52,6 +53,18 @@ def _burning_board(t_lit: float = 0.3) -> tuple[IgniterBoard, float]:
         t = round(t + 0.001, 6)
     assert b.flame_on
     return b, last
+
+
+def test_board_logic_off_within_100ms_of_last_keepalive():
+    """The board's rule on a simulated clock (1 ms ticks, like the firmware timer): deterministic."""
+    for gap_at in (0.2, 0.2137, 0.5):
+        b, last = _burning_board(gap_at)
+        t = round(math.ceil(gap_at * 1000 - 1e-6) / 1000, 6)  # the first tick the helper did not run
+        while b.valve_open:
+            b.tick(t)
+            t = round(t + 0.001, 6)
+        assert b.event == "keepalive_timeout"
+        assert 0.08 < b.flame_off_at - last <= 0.1
 
 
 def _run_gap(b: IgniterBoard, last: float, gap: float) -> None:
