@@ -837,10 +837,9 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
         if uv is not None:
             method = "fan_apex"
-        elif plant_centre.blade_fraction(plant, size) >= plant_centre.FAN_BLADES:
+        else:
             # blades merged by blur or nearly parallel: their axes do not meet in the votes, but
-            # the fan's base is the extremity from which every blade runs straight (most of a
-            # rosette, clover or seedling survives the opening: they never get here)
+            # the fan's base is the extremity from which every blade runs straight
             uv = plant_centre.fan_base(plant, size)
             if uv is not None:
                 method = "fan_base"

@@ -3,8 +3,9 @@
 Moves stream joint targets at 500 Hz (minimum-jerk from the measured joints, timed within the
 joint speed limit) as ARM_TARGET_A/B pairs; the gateway servoes to them and reports joint
 state (100 Hz) and status (20 Hz + on change). `move_to_pose` solves IK with RobotModel first.
-A state set is the ARM_STATE_A frame directly followed (within 10 ms, nothing of the pair's ids
-in between) by the ARM_STATE_B with the same counter (`SetPairer`); other halves are discarded.
+A state set is the ARM_STATE_A frame directly followed (within PAIR_WINDOW_S = 30 ms, nothing
+of the pair's ids in between) by the ARM_STATE_B with the same counter (`SetPairer`); other
+halves are discarded.
 Outcomes: MoveResult(ok=False, reason) for motion failures (joint_limit, ik_failed, gateway
 fault codes), DriverTimeout when `timeout` runs out, LinkLost when the gateway heartbeat stops
 (or the bus fails); every failure path sends STOP (best effort) before returning or raising.

@@ -233,7 +233,7 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
     """Parse and validate a mission file; returns the mission and its TROIs (listed or prescan)."""
     path = Path(path)
     if not path.is_file():
-        raise MissionError([f"{path}: {'is a directory, not a mission file' if path.is_dir() else 'mission file not found' if not path.exists() else 'not a regular file'}"])
+        raise MissionError([f"{path}: {_not_a_file(path, 'mission')}"])
     try:
         size = path.stat().st_size
         if size > MAX_MISSION_BYTES:  # a mission is a few kB; long TROI lists belong in a prescan file
@@ -283,16 +283,12 @@ def _check_plan(mission: Mission, trois: list[TROI], path: Path, lines: dict[tup
     flame the first targets, then abort on a move timeout)."""
     problems: list[str] = []
     if mission.drivers.kind == "bench" and mission.drivers.faults:
-        from sim_bench.faults import parse_faults
+        from sim_bench.faults import bench_faults
 
         try:
-            faults = parse_faults(mission.drivers.faults, len(trois))
+            bench_faults(mission.drivers.faults, len(trois), mission.drivers.transport)
         except UserError as e:
             problems.append(f"{path}:{_line_for(lines, ('drivers', 'faults')) or '?'}: drivers.faults: {str(e).removeprefix('--faults: ')}")
-        else:
-            if faults and mission.drivers.transport != "inprocess":
-                problems.append(f"{path}:{_line_for(lines, ('drivers', 'faults')) or '?'}: drivers.faults: fault schedules "
-                                "run on the in-process bench (transport: inprocess)")
     from .ordering import order_trois
 
     start, end = mission.start.se2(), mission.end_pose()
@@ -338,7 +334,7 @@ def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
 def load_prescan(src: Path) -> list[TROI]:
     """TROIs from a prescan file: CSV (x,y,r[,id]) or GeoJSON (Point features with radius|r)."""
     if not src.is_file():
-        raise MissionError([f"{src}: {'is a directory, not a prescan file' if src.is_dir() else 'prescan file not found' if not src.exists() else 'not a regular file'}"])
+        raise MissionError([f"{src}: {_not_a_file(src, 'prescan')}"])
     problems: list[str] = []
     out: list[TROI] = []
     suffix = src.suffix.lower()
@@ -389,6 +385,11 @@ def load_prescan(src: Path) -> list[TROI]:
     if problems:
         raise MissionError(problems)
     return out
+
+
+def _not_a_file(p: Path, what: str) -> str:
+    """Why `p` (not `is_file()`) cannot be read as a `what` file."""
+    return f"is a directory, not a {what} file" if p.is_dir() else f"{what} file not found" if not p.exists() else "not a regular file"
 
 
 def _is_number(v: Any) -> bool:

@@ -131,12 +131,10 @@ def main(argv: list[str]) -> int:
     check_hardware_files(mission, a.mission)
     faults = []
     if mission.drivers.kind == "bench":
-        from sim_bench.faults import parse_faults
+        from sim_bench.faults import bench_faults
 
-        faults = parse_faults(a.faults if a.faults is not None else mission.drivers.faults, len(trois))  # before anything is written
-        if faults and mission.drivers.transport != "inprocess":
-            raise UserError("drivers.faults: fault schedules run on the in-process bench (transport: inprocess); "
-                            "wire-level faults are exercised by the driver tests")
+        spec = a.faults if a.faults is not None else mission.drivers.faults
+        faults = bench_faults(spec, len(trois), mission.drivers.transport)  # before anything is written
     elif a.faults or a.seed is not None:
         raise UserError("--faults and --seed apply to bench missions only (drivers.kind: bench)")
     out = Path(a.out or mission.output.dir)

@@ -89,6 +89,15 @@ def parse_faults(spec: Any, n_targets: int) -> list[Fault]:
     return faults
 
 
+def bench_faults(spec: Any, n_targets: int, transport: str) -> list[Fault]:
+    """`parse_faults`, and the rule that fault schedules run on the in-process bench only."""
+    faults = parse_faults(spec, n_targets)
+    if faults and transport != "inprocess":
+        raise UserError("fault schedules run on the in-process bench (transport: inprocess); "
+                        "wire-level faults are exercised by the driver tests")
+    return faults
+
+
 def random_faults(seed: int, n_targets: int, max_faults: int = 3) -> list[Fault]:
     rng = np.random.default_rng(seed)
     kinds = sorted(FAULT_KINDS)
