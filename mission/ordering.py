@@ -14,11 +14,6 @@ from capm_field.geometry import SE2
 from capm_field.keystates import TROI
 
 
-def _length(pts: np.ndarray, order: list[int], start: np.ndarray, end: np.ndarray) -> float:
-    path = np.vstack([start, pts[order], end])
-    return float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
-
-
 def order_trois(trois: list[TROI], start_xy: np.ndarray, end_xy: np.ndarray, max_rounds: int = 50) -> list[TROI]:
     if len(trois) <= 1:
         return list(trois)
