@@ -106,8 +106,10 @@ class Roi:
         M = self.conic[:2, :2]
         c = -np.linalg.solve(M, self.conic[:2, 2])
         k = -(np.r_[c, 1.0] @ self.conic @ np.r_[c, 1.0])
+        if not k > 0:
+            raise ValueError("conic has no interior")
         evals, evecs = np.linalg.eigh(M / k)
-        if not (k > 0 and np.all(evals > 0)):
+        if not np.all(evals > 0):
             raise ValueError("conic has no interior")
         axes = 1 / np.sqrt(evals)
         ang = math.degrees(math.atan2(evecs[1, 0], evecs[0, 0]))
@@ -240,6 +242,11 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
         return bad
     try:
         roi = _as_roi(roi_in)
+        if roi is not None:
+            roi.params()  # raises for a conic without interior
+            # an ellipse holding all four corners holds the whole (convex) frame: no ROI then
+            if bool(np.all(roi.contains(np.array([[0.0, 0.0], [W - 1.0, 0.0], [0.0, H - 1.0], [W - 1.0, H - 1.0]])))):
+                roi = None
     except Exception:  # noqa: BLE001
         return bad
 
@@ -502,8 +509,13 @@ def _roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float,
     # unless sx ≠ sy (then approximately; both are within a pixel of each other)
     cg = ((c[0] - x0 + 0.5) / sx - 0.5, (c[1] - y0 + 0.5) / sy - 0.5)
     s_ = math.sqrt(sx * sy)
-    m = np.zeros(shape, np.uint8)
     S = 16
+    if max(abs(cg[0]), abs(cg[1]), ROI_MARGIN * ax[0] / s_, ROI_MARGIN * ax[1] / s_) * S > 2**28:
+        # beyond OpenCV's fixed-point drawing range (a far-off or huge ellipse): test each cell
+        jj, ii = np.meshgrid(np.arange(shape[1]), np.arange(shape[0]))
+        uv = np.c_[x0 + (jj.ravel() + 0.5) * sx - 0.5, y0 + (ii.ravel() + 0.5) * sy - 0.5]
+        return roi.contains(uv, ROI_MARGIN).reshape(shape)
+    m = np.zeros(shape, np.uint8)
     cv2.ellipse(m, (int(round(cg[0] * S)), int(round(cg[1] * S))),
                 (max(1, int(round(ROI_MARGIN * ax[0] / s_ * S))), max(1, int(round(ROI_MARGIN * ax[1] / s_ * S)))),
                 math.degrees(t), 0, 360, 1, -1, cv2.LINE_8, 4)

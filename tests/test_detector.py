@@ -350,6 +350,21 @@ def test_bad_roi_never_raises() -> None:
         assert detect_centre(img, roi).reason == "bad_image"
 
 
+def test_degenerate_or_huge_roi_is_answered_without_a_traceback(caplog) -> None:
+    """A conic without interior is bad input (no logged failure); an ellipse holding the whole
+    frame, however large, is the same as no ROI; a huge one off to a side still works."""
+    img = cv2.imread(str(FIX / "rosette_vga.jpg"))
+    with caplog.at_level("ERROR", logger="capm_field.detector"):
+        assert detect_centre(img, ((376, 195), (0, 0), 0)).reason == "bad_image"
+        assert detect_centre(img, np.diag([1.0, 1.0, 1.0])).reason == "bad_image"
+        whole = detect_centre(img)
+        for roi in (((376, 195), (1e9, 1e9), 0), ((320, 240), (4000, 3000), 10.0)):
+            assert detect_centre(img, roi).pixel == whole.pixel
+        side = detect_centre(img, ((-1e9 + 560, 195), (2e9, 4e8), 0))  # holds x ≤ 560: the plant
+        assert side.reason is None and np.hypot(side.pixel[0] - whole.pixel[0], side.pixel[1] - whole.pixel[1]) < 3
+    assert not caplog.records, [r.getMessage() for r in caplog.records]
+
+
 def test_roi_representations_agree() -> None:
     r = Roi.from_ellipse((300.0, 200.0), (120.0, 60.0), 30.0)
     (cu, cv_), (w, h), ang = r.ellipse()
