@@ -124,6 +124,17 @@ class HardwareDrivers(_Strict):
     camera: CameraSpec = Field(default_factory=CameraSpec)
 
 
+FUEL_RESERVE = 0.02  # tank fraction never planned into by default
+
+
+class IgniterSpec(_Strict):
+    """Fuel budget: a target is begun only if its ξ hold fits above `fuel_reserve`."""
+
+    fuel_per_s: float | None = Field(None, gt=0.0, le=1.0, description="tank fraction burnt per second of flame; "
+                                     "unset: measured from the run's own holds (none known before the first)")
+    fuel_reserve: float = Field(FUEL_RESERVE, ge=0.0, lt=1.0, description="tank fraction never planned into")
+
+
 class OutputSpec(_Strict):
     dir: str = "runs/latest"
     images: bool = True
@@ -138,6 +149,7 @@ class Mission(_Strict):
     end: Pose | None = Field(None, description="x_kmax after the last TROI; default: the start pose")
     planner: str = "c"
     drivers: BenchDrivers | HardwareDrivers = Field(discriminator="kind")
+    igniter: IgniterSpec = Field(default_factory=IgniterSpec)
     output: OutputSpec = Field(default_factory=OutputSpec)
     timeouts: dict[str, float] = Field(default_factory=lambda: {"body": 60.0, "arm": 20.0, "camera": 5.0})
 

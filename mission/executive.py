@@ -29,6 +29,7 @@ from capm_field.planners import BasePlanner, PlanningCore
 from capm_field.reachability import FlameSolver
 from drivers.interfaces import DriverError, DriverSet, DriverTimeout, EStopActive, LinkLost
 
+from .config import FUEL_RESERVE
 from .interlock import IgnitionInterlock
 from .ordering import order_trois
 from .ordering import x_kmax as x_kmax_of
@@ -106,6 +107,8 @@ class Executive:
         timeouts: dict[str, float] | None = None,
         detector: Callable | None = None,
         hook: Callable[[int, str, float], set[str]] | None = None,
+        fuel_per_s: float | None = None,
+        fuel_reserve: float = FUEL_RESERVE,
     ):
         self.trois = trois
         self.start, self.end = start, end
@@ -130,6 +133,11 @@ class Executive:
         self._hook_fn = hook
         self._index = 0
         self._directives: set[str] = set()
+        # fuel budget: a target is begun only if its ξ hold fits above the reserve (FUEL_MARGIN ×
+        # the larger of the configured rate and the highest rate measured over this run's holds)
+        self.fuel_per_s = fuel_per_s
+        self.fuel_reserve = float(fuel_reserve)
+        self._fuel_rate_seen = 0.0
 
     def _hook(self, phase: str, elapsed_s: float = 0.0) -> None:
         """Bench fault schedule: lets scheduled faults strike at this phase (no-op on the robot)."""
@@ -359,9 +367,11 @@ class Executive:
                 self._safe()
                 self._raise_if_fatal(st.reasons, st.estop)
                 raise _Skip(f"interlock:{','.join(st.reasons)}")
+            fuel_before = float(self.d.igniter.state().fuel)
             self.d.igniter.arm(self.timeouts["arm"])
             res = self._hold(il)
             flame_s = float(res.extra.get("flame_s", 0.0))
+            self._note_fuel_burnt(fuel_before, flame_s)
             if res.ok:
                 self._event("info", f"{tid}: flamed {flame_s:.2f} s (ξ = {self.task.xi} s)", target=tid)
                 return flame_s
@@ -423,6 +433,35 @@ class Executive:
             self.d.igniter.disarm()
             self._igniter_state(il)
 
+    FUEL_MARGIN = 1.25  # × the expected fuel of one ξ hold (ignition and a relight cost some too)
+
+    def _fuel_need(self) -> float:
+        """Tank fraction one ξ hold is expected to burn (0 while no rate is known)."""
+        rate = max(self.fuel_per_s or 0.0, self._fuel_rate_seen)
+        return self.FUEL_MARGIN * self.task.xi * rate
+
+    def _check_fuel(self, tid: str) -> None:
+        """Begin a target only with its flame hold's fuel above the reserve: aborting here, before
+        the walk, leaves the tank's last fuel unplanned and no weed half-burnt (a run-dry mid-hold
+        would). Raises MissionAborted."""
+        fuel = float(self.d.igniter.state().fuel)
+        need = self._fuel_need()
+        if fuel - need <= self.fuel_reserve:
+            what = f", a hold needs ~{need:.1%}" if need > 0 else ""
+            raise MissionAborted(f"igniter: fuel low ({fuel:.1%} left{what}, reserve {self.fuel_reserve:.1%}); "
+                                 f"{tid} and later targets not begun")
+
+    def _note_fuel_burnt(self, fuel_before: float, flame_s: float) -> None:
+        """Learn the tank's consumption from a hold (the highest rate seen is kept)."""
+        if flame_s < 0.5:
+            return
+        try:
+            burnt = fuel_before - float(self.d.igniter.state().fuel)
+        except Exception:  # noqa: BLE001 - a state read failing here is handled by the next check
+            return
+        if burnt > 0:
+            self._fuel_rate_seen = max(self._fuel_rate_seen, burnt / flame_s)
+
     def _target(self, i: int, n: int, troi: TROI, x_kmax: SE2, res: TargetResult) -> None:
         tid = troi.id
         self._tid = tid
@@ -440,6 +479,7 @@ class Executive:
 
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
+        self._check_fuel(tid)
         x1 = self._walk_target(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
         if self.planner.name == "a":
@@ -518,6 +558,7 @@ class Executive:
         x1 = plan.x_b_k1
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
+        self._check_fuel(tid)
         if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
             x1 = self._walk_target(x1)
         else:
@@ -666,3 +707,10 @@ class Executive:
             raise EStopActive("E-stop engaged at mission start")
         self._safe()
         self._stow()
+        need = self._fuel_need()
+        if need > 0:
+            fuel = float(self.d.igniter.state().fuel)
+            holds = max(0, int((fuel - self.fuel_reserve) / need))
+            if holds < len(self.trois):
+                self._event("warning", f"fuel {fuel:.1%} (reserve {self.fuel_reserve:.1%}) is enough for about {holds} "
+                                       f"of {len(self.trois)} targets; the mission stops before the first that does not fit")

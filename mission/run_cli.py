@@ -197,7 +197,8 @@ def main(argv: list[str]) -> int:
     to_runlog = RunLogHandler(log, now_ns)
     logging.getLogger().addHandler(to_runlog)
     try:
-        ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts, hook=hook)
+        ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts, hook=hook,
+                       fuel_per_s=mission.igniter.fuel_per_s, fuel_reserve=mission.igniter.fuel_reserve)
         result = ex.run()
     finally:
         logging.getLogger().removeHandler(to_runlog)

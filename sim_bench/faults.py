@@ -33,6 +33,7 @@ FAULT_KINDS: dict[str, str] = {
     "ignition_failure": "flame",  # the igniter fails to light (every trial until cleared)
     "flame_out": "flame",  # the flame goes out mid-hold (params after_s, default 1.0)
     "fuel_empty": "flame",  # the tank runs dry while flaming
+    "fuel_low": "walk",  # the tank holds only params.level (default 0.005) as a target begins
     "camera_drop": "observe",  # the next frame is dropped (capture times out)
     "black_frame": "observe",  # the next frame is black
     "detector_miss": "observe",  # the detector finds nothing in the next frame
@@ -175,6 +176,8 @@ class FaultInjector:
             d.igniter.hooks.flame_out = True
         elif k == "fuel_empty":
             d.igniter.board.fuel = 1e-6
+        elif k == "fuel_low":
+            d.igniter.board.fuel = float(p.get("level", 0.005))
         elif k == "camera_drop":
             d.camera.inject_drop(1)
         elif k == "black_frame":

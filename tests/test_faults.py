@@ -65,6 +65,7 @@ EXPECTED = {
     "ignition_failure": (False, True),
     "flame_out": (False, True),
     "fuel_empty": (True, False),
+    "fuel_low": (True, False),
     "camera_drop": (False, True),
     "black_frame": (False, True),
     "detector_miss": (False, True),
@@ -102,6 +103,49 @@ def test_fault_class_response(core, tmp_path, kind):
     assert any(f"fault injected: {kind}" in e for e in events)
     if aborted:
         assert any("mission aborted" in e for e in events)
+
+
+THREE = [TROI(1.0, 0.3, 0.22, "A"), TROI(1.8, -0.3, 0.22, "B"), TROI(2.6, 0.3, 0.22, "C")]
+
+
+def _fuel_run(core, tmp_path, fuel: float, **kw):
+    d = open_bench_drivers(core.robot, core.task, THREE, START, 2)
+    d.igniter.board.fuel = fuel
+    log = RunLog(tmp_path / "run.mcap", core.robot, PinholeCamera.from_config(core.robot.cfg.camera), bench=True)
+    world = d.extras["world"]
+    ex = Executive(THREE, START, END, d, core, make_planner("c", core), log=log, truth=world.truth,
+                   now_ns=world.clock.now_ns, **kw)
+    try:
+        return ex.run(), d.igniter.board.fuel, ex.total_energy, tmp_path / "run.mcap"
+    finally:
+        d.close()
+        log.close()
+
+
+def test_fuel_budget_learnt_from_the_first_hold_stops_before_a_target_that_does_not_fit(core, tmp_path):
+    """Room for 1.5 holds above the 2 % reserve: the first target is flamed, its hold measures the
+    tank's rate, and the mission stops before walking to the second (nothing half-burnt)."""
+    hold = core.task.xi / 600.0  # the bench tank burns 1/600 per second of flame
+    result, fuel, _, log = _fuel_run(core, tmp_path, 0.02 + 1.5 * hold, fuel_reserve=0.02)
+    assert [t.flamed for t in result.targets] == [True, False, False]
+    assert result.aborted and "fuel low" in result.aborted
+    assert [t.reason for t in result.targets[1:]] == ["mission_aborted"] * 2
+    assert result.targets[1].energy == 0.0  # stopped before its walk
+    assert fuel > 0.02  # the reserve was never burnt
+    assert check_ignition_invariant(log).ok
+
+
+def test_fuel_budget_from_the_configured_rate_warns_at_start_and_walks_nowhere(core, tmp_path):
+    result, _, energy, log = _fuel_run(core, tmp_path, 0.05, fuel_per_s=0.01, fuel_reserve=0.02)
+    assert not any(t.flamed for t in result.targets) and "fuel low" in result.aborted
+    assert energy == 0.0
+    events = [m.data.message for m in iter_run(log, topics={"/log"})]
+    assert any("enough for about 0 of 3 targets" in e for e in events)
+
+
+def test_fuel_budget_lets_a_full_tank_run(core, tmp_path):
+    result, _, _, _ = _fuel_run(core, tmp_path, 1.0, fuel_per_s=1 / 600.0, fuel_reserve=0.02)
+    assert result.aborted is None and all(t.flamed for t in result.targets)
 
 
 def test_persistent_ignition_failure_is_bounded_and_latched(core, tmp_path):
