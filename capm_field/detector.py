@@ -683,7 +683,8 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
     centroid from the ROI centre in ROI radii.
     """
     v = vi[gm]
-    pc = small[gm].astype(np.float32) * gains
+    raw = small[gm].astype(np.float32)
+    pc = raw * gains
     mx, mn = pc.max(1), pc.min(1)
     ys, xs = np.nonzero(gm)
     xs += origin[0]  # grid coordinates: the same values as from the uncropped mask
@@ -702,6 +703,7 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
         gb=float(np.median((pc[:, 1] - pc[:, 0]) / (pc.sum(1) + 30))),
         gr=float(np.median((pc[:, 1] - pc[:, 2]) / (pc.sum(1) + 30))),
         sat=float(np.median((mx - mn) / (mx + 1))),
+        g_raw=float(np.median((raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / (raw.sum(1) + 30))),
         mass=float(np.sum(v - soil)),
         d=math.hypot(xs.mean() - cen[0], ys.mean() - cen[1]) / rad,
     )
@@ -730,12 +732,19 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     strong = f["gsig"] >= 5 and f["gb"] >= 0.10 or f["gsig"] >= STRONG_SIGMA
     if f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or strong):
         return True
+    # grey- or blue-green leaves (glaucous, or dulled by overcast light): green above both red
+    # and blue in the median, also before the white balance (which turns grey stones on a red
+    # soil just as green), and far above the soil (≥ 12 σ)
+    if not vivid and f["gsig"] >= STRONG_SIGMA and f["g_p90"] >= 0.035 and f["gb"] >= DULL_GB and f["gr"] >= DULL_GR \
+            and f["sat"] >= DULL_SAT and f.get("g_raw", 0.0) >= DULL_RAW:
+        return True
     # blue-green (glaucous) leaves: green barely above blue (gb < 0.07) but far above red,
     # further than any soil, stone or straw of the bench (gr ≤ 0.07 on its bare-soil frames)
     return not vivid and f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 \
         and (f["gr"] >= TEAL_GR or f["gr"] >= TEAL_GR_WEAK and f["g_p90"] >= 0.04)
 
 
+DULL_GB, DULL_GR, DULL_SAT, DULL_RAW = 0.02, 0.03, 0.15, 0.02
 TEAL_GB, TEAL_SAT = 0.01, 0.25
 TEAL_GR, TEAL_GR_WEAK = 0.12, 0.08  # gr = median (G − R)/(R + G + B + 30) after white balance
 

@@ -96,6 +96,17 @@ def test_straw_is_not_a_plant() -> None:
     assert det.reason == "no_plant", det
 
 
+def test_dull_grey_green_plant_far_above_the_soil_is_a_plant() -> None:
+    """Grey-green leaves (overcast light, glaucous leaves; saturation ≈ 0.2, G only a little
+    above R and B) standing ≥ 12 σ above a smooth soil are a plant, not a stone."""
+    rng = np.random.default_rng(12)
+    img = np.clip(cv2.GaussianBlur(rng.normal(0, 3, (480, 640, 3)), (0, 0), 1.0) + (80, 95, 120), 0, 255).astype(np.uint8)
+    c = np.array([320.0, 240.0])
+    _lens_rosette(img, rng, c, 70.0, (100, 120, 98))  # BGR: G above R by 22 and above B by 20
+    det = detect_centre(img)
+    assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 25, det  # found (the centre: other tests)
+
+
 def _yellow_green_seedling(img: np.ndarray, c: np.ndarray) -> None:
     """Three yellow-green leaves (G ≈ R) of 30–45 px from `c`."""
     for a, L in ((-1.2, 45), (1.9, 40), (0.4, 30)):
