@@ -243,7 +243,7 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     try:
         roi = _as_roi(roi_in)
         if roi is not None:
-            roi.params()  # raises for a conic without interior
+            c, ax, ang = roi.params()  # raises for a conic without interior
             # an ellipse holding all four corners holds the whole (convex) frame: no ROI then
             if bool(np.all(roi.contains(np.array([[0.0, 0.0], [W - 1.0, 0.0], [0.0, H - 1.0], [W - 1.0, H - 1.0]])))):
                 roi = None
@@ -252,7 +252,6 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
 
     # ---- search window (ROI bounding box grown by the margin) and stage-1 downscale
     if roi is not None:
-        c, ax, ang = roi.params()
         t = math.radians(ang)
         ex = ROI_MARGIN * math.hypot(ax[0] * math.cos(t), ax[1] * math.sin(t))
         ey = ROI_MARGIN * math.hypot(ax[0] * math.sin(t), ax[1] * math.cos(t))
@@ -679,8 +678,8 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
     gb: median (G − B)/(R + G + B + 30) after the soil white balance (leaves reflect far more
     green than blue; grey stones turned cyan-green by the white balance and straw do not),
     gr: the same with G − R (blue-green leaves, whose gb is low), sat: median saturation after
-    white balance, mass: Σ (index − soil), d: distance of the
-    centroid from the ROI centre in ROI radii.
+    white balance, g_raw: median (G − max(R, B))/(R + G + B + 30) before it, mass: Σ (index −
+    soil), d: distance of the centroid from the ROI centre in ROI radii.
     """
     v = vi[gm]
     raw = small[gm].astype(np.float32)
@@ -736,7 +735,7 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     # and blue in the median, also before the white balance (which turns grey stones on a red
     # soil just as green), and far above the soil (≥ 12 σ)
     if not vivid and f["gsig"] >= STRONG_SIGMA and f["g_p90"] >= 0.035 and f["gb"] >= DULL_GB and f["gr"] >= DULL_GR \
-            and f["sat"] >= DULL_SAT and f.get("g_raw", 0.0) >= DULL_RAW:
+            and f["sat"] >= DULL_SAT and f["g_raw"] >= DULL_RAW:
         return True
     # blue-green (glaucous) leaves: green barely above blue (gb < 0.07) but far above red,
     # further than any soil, stone or straw of the bench (gr ≤ 0.07 on its bare-soil frames)

@@ -1,4 +1,5 @@
-"""Shared fixtures: the default robot, task and reachability maps (built once, cached on disk)."""
+"""Shared fixtures: the default robot, task and reachability maps (built once, cached on disk);
+a raw CAN host on the simulated gateway."""
 
 from __future__ import annotations
 
@@ -33,3 +34,26 @@ def regions(robot, maps) -> Regions:
 @pytest.fixture(scope="session")
 def core(robot, maps, task) -> PlanningCore:
     return PlanningCore(robot, maps, task)
+
+
+@pytest.fixture
+def raw():
+    """(CanBench with the robot side only, RawHost on its virtual bus), once the gateway's status
+    and the host's heartbeats have been seen by both ends."""
+    import time
+
+    from sim_bench.can_rig import CanBench, RawHost
+
+    bench = CanBench(with_arm=False, with_igniter=False)
+    host = RawHost(bench.bus)
+    try:
+        assert host.wait_ign(lambda s: True, 2.0) is not None
+        rs = bench.robot_side
+        end = time.monotonic() + 2.0
+        while not (rs.board.host_present and rs._host_arm_hb is not None) and time.monotonic() < end:
+            time.sleep(0.005)
+        assert rs.board.host_present and rs._host_arm_hb is not None  # host heartbeats seen
+        yield bench, host
+    finally:
+        host.close()
+        bench.close()

@@ -142,20 +142,6 @@ def _wait(pred, timeout: float = 2.0) -> bool:
     return pred()
 
 
-@pytest.fixture
-def raw():
-    bench = CanBench(with_arm=False, with_igniter=False)
-    host = RawHost(bench.bus)
-    try:
-        assert host.wait_ign(lambda s: True, 2.0) is not None
-        rs = bench.robot_side
-        assert _wait(lambda: rs.board.host_present and rs._host_arm_hb is not None)  # host heartbeats seen
-        yield bench, host
-    finally:
-        host.close()
-        bench.close()
-
-
 def _keepalives(host: RawHost, duration: float) -> None:
     end = time.monotonic() + duration
     nxt = time.monotonic()

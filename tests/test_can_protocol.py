@@ -130,21 +130,8 @@ def test_extended_and_unknown_ids_rejected_with_their_reason():
 
 
 # ---- wire: bad frames are never acted on ------------------------------------------------------
-@pytest.fixture
-def board_bench():
-    bench = CanBench(with_arm=False, with_igniter=False)
-    host = RawHost(bench.bus)
-    try:
-        assert host.wait_ign(lambda s: True, 1.0) is not None
-        time.sleep(0.05)  # host heartbeat seen by the board
-        yield bench, host
-    finally:
-        host.close()
-        bench.close()
-
-
-def test_board_never_acts_on_bad_frames(board_bench):
-    bench, host = board_bench
+def test_board_never_acts_on_bad_frames(raw):
+    bench, host = raw
     board, rx = bench.robot_side.board, bench.robot_side.ign_rx
     good = host.enc.encode("IGN_CMD", {"Command": IGN_ARM})
     bad_crc = bytearray(good.data)
@@ -165,8 +152,8 @@ def test_board_never_acts_on_bad_frames(board_bench):
     # the board reports its rejection count (waited for above)
 
 
-def test_bad_frame_while_burning_extinguishes_at_once(board_bench):
-    bench, host = board_bench
+def test_bad_frame_while_burning_extinguishes_at_once(raw):
+    bench, host = raw
     host.light()  # ARM + keep-alives until lit
     host.ign(IGN_IGNITE)
     t_bad = host.send(can.Message(arbitration_id=0x120, data=bytes(8), is_extended_id=False))
@@ -221,8 +208,8 @@ def test_gateway_heartbeat_loss_raises_link_lost_then_recovers():
         assert arm.link.ok and arm.state().fault is None
 
 
-def test_host_loss_shuts_valve_and_disarms(board_bench):
-    bench, host = board_bench
+def test_host_loss_shuts_valve_and_disarms(raw):
+    bench, host = raw
     host.ign(IGN_ARM)
     assert host.wait_ign(lambda s: s["Armed"] == 1, 1.0)
     host.stop_heartbeat()  # host frozen except for keep-alives (bug): the board must still stop
