@@ -206,8 +206,9 @@ def main(argv=None) -> int:
         for r in rk:
             if r["reason"]:
                 reasons[r["reason"]] = reasons.get(r["reason"], 0) + 1
+        med, p90 = (np.median(ek), np.percentile(ek, 90)) if ek else (float("nan"), float("nan"))  # --only: maybe none found
         print(f"  {k:<9} n {len(rk):>3} det {len(ek) / len(rk):6.1%} wrong {sum(e > WRONG_MM for e in ek):>2} "
-              f"median {np.median(ek):5.2f} p90 {np.percentile(ek, 90):6.2f} mm  misses {reasons}")
+              f"median {med:5.2f} p90 {p90:6.2f} mm  misses {reasons}")
     fails = [r["i"] for r in rows if r["fail"]]
     print("failing:", ",".join(map(str, fails)))
     return 0

@@ -169,10 +169,12 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
                 return det  # the second look chose something else than the plants in question
             if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
                 return det2
-        elif det.reason is None and first["best"] < SMALL_PLANT * win.n_in:
+        elif det.reason is None and (first["best"] < SMALL_PLANT * win.n_in or first["feat"]["g_p90"] < PALE_G90):
             # a small first choice (seedling-sized) may be a vivid speck while the weed is a pale
-            # seedling only the second look segments: take the second look's choice when it
-            # scores clearly higher (bench seeds 0–3: wrong 39 → 36, > 15 mm 110 → 106)
+            # seedling only the second look segments; a first choice of low absolute greenness may
+            # be only the greenest part of a yellow-green plant, which −a* segments whole: take
+            # the second look's choice when it scores clearly higher (bench seeds 0–3: wrong
+            # 39 → 36, > 15 mm 110 → 106 for the small ones)
             second: dict = {}
             det2 = _detect(image_bgr, roi, debug, vivid=True, first=second, win=win)
             if det2.reason is None and second.get("best", 0.0) > SMALL_GAIN * first["best"]:
@@ -189,6 +191,8 @@ SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below wh
 # (~25 % of the bench's weed frames, mostly seedlings; 0.01 measured 1 fewer wrong on seeds 0–3 but
 # +5 ms median latency, 0.003 +1.7 ms)
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it
+PALE_G90 = 0.05  # first choice's G* p90 below which the second look also runs (+8 % of the bench's
+# frames; bench and photo-like benches: 6 answers ≥ 0.1 S better, 1 worse; always: +10 ms median)
 
 
 def _in_boxes(uv, boxes: list, grow: float = 0.2) -> bool:
@@ -340,7 +344,9 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
         f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, cen_s, rad_s,
                        origin=(l0, t0))
         feats[k] = dict(f)
-        ok = _plant_like(f, vivid)
+        # a long straight piece whose raw colour is not green (straw that the soil white balance
+        # turned green) is not joined to a plant next to it: it would drag the plant's centre
+        ok = _plant_like(f, vivid) and not (f["elong"] > STRAW_ELONG and f["g_raw"] < STRAW_RAW)
         if ok:
             keep.append(k)
         if debug is not None:  # every component's colour features and full-image centroid
@@ -394,7 +400,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
                 box = (fx0, fy0, fx1, fy1)
         else:
             f["score"] = 0.0
-        scored.append((f["score"], gm, f["area"], box))
+        scored.append((f["score"], gm, f["area"], box, f))
         if debug is not None:
             ys, xs = np.nonzero(gm)
             f["c"] = [float(c) for c in to_full(np.array([xs.mean(), ys.mean()]))]
@@ -404,10 +410,11 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if not scored:
         return Detection(None, 0.0, "no_plant")
     scored.sort(key=lambda t: -t[0])
-    best_score, gmask, _, _ = scored[0]
+    best_score, gmask, _, _, best_f = scored[0]
     if first is not None:
         first["contenders"] = [t[3] for t in scored if t[3] is not None and t[0] >= AMBIGUOUS * best_score]
         first["best"] = best_score  # vegetation area × centrality (see above), stage-1 pixels
+        first["feat"] = best_f
     if debug is not None:
         full = np.zeros((H, W), np.uint8)
         lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)
@@ -667,6 +674,7 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
 
 STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5
 STRAW_ELONG = 6.5  # same on the stage-1 grid (weeds measured ≤ 5.9 but one merged with straw)
+STRAW_RAW = -0.02  # g_raw below which a long straight piece is straw (measured: straw −0.04, olive grass blades ≥ −0.005)
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
 
 
