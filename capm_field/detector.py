@@ -732,7 +732,8 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     """
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB):
-        return False
+        # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
+        return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR
     # the weaker the absolute greenness, the stronger the margin over the soil must be: ≥ 5 σ
     # with gb ≥ 0.10, or ≥ 12 σ with the base gb (dark olive grass on dark soil: G* p90 0.015
     # at 15 σ, gb 0.096 — demo seed 8)

@@ -711,6 +711,55 @@ def test_blue_green_leaves_are_plants() -> None:
     assert found >= 7, found
 
 
+def test_teal_leaves_that_only_the_second_look_segments_are_plants() -> None:
+    """Teal leaves (G only 12–13 above B, far above R) on red and brown soils: the soil white
+    balance lifts blue, so G − max(R, B) leaves them at the soil's level and the first look
+    says "no_plant"; the CIELAB look segments them, and their colour (far greener than red,
+    the blue-green rule) makes them a plant rather than a soil tint (it was "no_plant" when
+    the second look took vivid colours only)."""
+    import capm_field.detector as det_mod
+
+    rng = np.random.default_rng(5)
+    for soil in ((60, 85, 140), (62, 88, 118)):  # BGR: red, brown
+        for col in ((100, 112, 40), (105, 118, 60)):
+            img = _soil(rng, (720, 1280), colour=soil)
+            c = np.array([640.0, 360.0])
+            _lens_rosette(img, rng, c, 90.0, col)
+            img = cv2.GaussianBlur(img, (0, 0), 1.0)
+            assert det_mod._detect(img, None).reason == "no_plant"
+            det = detect_centre(img)
+            assert det.reason is None and math.hypot(det.pixel[0] - c[0], det.pixel[1] - c[1]) < 30, (soil, col, det)
+
+
+def test_yellow_green_plant_with_one_greener_leaf_is_found_whole() -> None:
+    """A large yellow-green rosette (G ≈ R) with one leaf a little greener (G 18 above R): the
+    first look segments that leaf alone (G* p90 ≈ 0.005) and answers half a leaf from the centre;
+    the CIELAB look, run because the first choice is so faintly green, takes the whole plant
+    (it was the leaf before: the first choice was large enough to be taken as it was)."""
+    import capm_field.detector as det_mod
+
+    rng = np.random.default_rng(7)
+    first_errs, errs = [], []
+    for _ in range(6):
+        img = _soil(rng, (720, 1280), colour=(95, 110, 115))
+        c = np.array([640.0, 360.0])
+        _lens_rosette(img, rng, c, 200.0, (35, 118, 116))
+        a, L = rng.uniform(0, 2 * np.pi), 190.0
+        t = np.linspace(0, 1, 30)
+        hw = L * 0.18 * np.sin(np.pi * t**0.8)
+        pts = np.r_[np.c_[t * L, hw], np.c_[t * L, -hw][::-1]]
+        R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+        cv2.fillPoly(img, [np.round((pts @ R.T + c) * 16).astype(np.int32)], (40, 128, 110), cv2.LINE_AA, shift=4)
+        img = cv2.GaussianBlur(img, (0, 0), 1.0)
+        first = det_mod._detect(img, None)
+        first_errs.append(math.hypot(first.pixel[0] - c[0], first.pixel[1] - c[1]))
+        det = detect_centre(img)
+        assert det.reason is None, det
+        errs.append(math.hypot(det.pixel[0] - c[0], det.pixel[1] - c[1]))
+    assert min(first_errs) > 70, np.round(first_errs)  # the first look: on the greener leaf
+    assert np.median(errs) < 20 and max(errs) < 70, np.round(errs)
+
+
 def test_five_kinds_from_another_renderer_with_a_roi() -> None:
     """25 weeds (grass, clover, seedling, rosette, lobed) from bench/other_renderer_plants.py,
     a renderer written without sim_bench or the detector, with a ROI around each (seed 7, not
