@@ -753,7 +753,7 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
 
 
 DULL_GB, DULL_GR, DULL_SAT, DULL_RAW = 0.02, 0.03, 0.15, 0.02
-TEAL_GB, TEAL_SAT = 0.01, 0.25
+TEAL_GB, TEAL_SAT = 0.01, 0.22
 TEAL_GR, TEAL_GR_WEAK = 0.12, 0.08  # gr = median (G − R)/(R + G + B + 30) after white balance
 
 
