@@ -343,6 +343,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
         sub = lab[t0:t0 + h0, l0:l0 + w0] == k
         f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, cen_s, rad_s,
                        origin=(l0, t0))
+        f["area_frac"] = f["area"] / n_in
         feats[k] = dict(f)
         # a long straight piece whose raw colour is not green (straw that the soil white balance
         # turned green) is not joined to a plant next to it: it would drag the plant's centre
@@ -718,6 +719,8 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
 
 STRONG_SIGMA = 12.0
 VIVID_SAT, VIVID_GB = 0.42, 0.15  # second look: bare-soil candidates measured sat ≤ 0.38, gb ≤ 0.14
+BIG_FRAC, BIG_GB, BIG_SAT, BIG_SIGMA = 0.01, 0.09, 0.30, 8.0  # second look: a candidate ≥ 1 % of the window
+# (bench bare soil: those reach gb 0.081, saturation 0.24, 2.8 σ; weeds missed there: ≥ 0.096, 0.31)
 VIVID_WB = 0.5  # exponent on the soil white balance in the second look: half (a full pull towards a reddish
 # soil turns yellow-green leaves on grey-olive soil orange; none measured 0.4 % fewer detections)
 VIVID_AREA = 4.0  # × the minimum component area (a 20-px green speck on bare soil came up)
@@ -731,7 +734,9 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
     """
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
-    if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB):
+    if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not (
+            f.get("area_frac", 0.0) >= BIG_FRAC and f["gb"] >= BIG_GB and f["sat"] >= BIG_SAT and f["gsig"] >= BIG_SIGMA):
+        # (a large candidate, ≥ 1 % of the window, needs less: soil tints that large are dull)
         # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
         return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR
     # the weaker the absolute greenness, the stronger the margin over the soil must be: ≥ 5 σ
