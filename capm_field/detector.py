@@ -175,10 +175,13 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             # be only the greenest part of a yellow-green plant, which −a* segments whole: take
             # the second look's choice when it scores clearly higher (bench seeds 0–3: wrong
             # 39 → 36, > 15 mm 110 → 106 for the small ones)
+            # (the second look's plant is chosen first; its centre is sought only if it is taken)
             second: dict = {}
-            det2 = _detect(image_bgr, roi, debug, vivid=True, first=second, win=win)
-            if det2.reason is None and second.get("best", 0.0) > SMALL_GAIN * first["best"]:
-                return det2
+            _detect(image_bgr, roi, None, vivid=True, first=second, win=win, choose_only=True)
+            if second.get("best", 0.0) > SMALL_GAIN * first["best"]:
+                det2 = _detect(image_bgr, roi, debug, vivid=True, win=win)
+                if det2.reason is None:
+                    return det2
         return det
     except Exception:  # the contract is "never raise": a bug must not stop a mission ...
         # ... but it must not go unseen either: the traceback goes to the log (and so the run's)
@@ -189,7 +192,9 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
 
 SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below which the second look also runs
 # (~25 % of the bench's weed frames, mostly seedlings; 0.01 measured 1 fewer wrong on seeds 0–3 but
-# +5 ms median latency, 0.003 +1.7 ms)
+# +5 ms median latency, 0.003 +1.7 ms; session 9, second look choosing before locating: 0.01 gave
+# 3 fewer wrong and p90 −0.3 to −1.1 mm on seeds 0–3, +3 ms median (paired) — the −a* index alone
+# costs ~4 ms a frame; not taken while the median is at the 20 ms target)
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it
 PALE_G90 = 0.05  # first choice's G* p90 below which the second look also runs (+8 % of the bench's
 # frames; bench and photo-like benches: 6 answers ≥ 0.1 S better, 1 worse; always: +10 ms median)
@@ -296,11 +301,12 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
 
 
 def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False,
-            first: dict | None = None, win: _Window | None = None) -> Detection:
+            first: dict | None = None, win: _Window | None = None, choose_only: bool = False) -> Detection:
     """One look (G* or, with `vivid`, CIELAB −a*). `first` receives the full-image boxes of the
-    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about)
-    and the best score under "best".
-    `win`: the frame's `_window(img, roi_in)` when already made."""
+    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about),
+    the best score under "best" and the chosen candidate's features under "feat".
+    `win`: the frame's `_window(img, roi_in)` when already made. `choose_only`: stop once the
+    plant is chosen (fills `first`; the Detection then has no pixel)."""
     if win is None:
         win = _window(img, roi_in)
         if isinstance(win, Detection):
@@ -416,6 +422,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
         first["contenders"] = [t[3] for t in scored if t[3] is not None and t[0] >= AMBIGUOUS * best_score]
         first["best"] = best_score  # vegetation area × centrality (see above), stage-1 pixels
         first["feat"] = best_f
+    if choose_only:
+        return Detection(None, 0.0, "no_plant" if best_score <= 0 else None)
     if debug is not None:
         full = np.zeros((H, W), np.uint8)
         lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)
