@@ -740,10 +740,13 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     Measured on the bench candidates (bench/perception_candidates.py, docs/perception.md):
     live leaves have gb ≥ 0.07 and saturation ≥ 0.2 after white balance, and either a clear
     absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
+    Grey-green (dull) and blue-green (teal) leaves have rules of their own. The second look
+    (`vivid`, −a*) takes vivid colours, teal leaves, and any candidate of ≥ BIG_FRAC of the
+    window (`area_frac`) with gb ≥ BIG_GB, saturation ≥ BIG_SAT and ≥ BIG_SIGMA σ.
     """
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not (
-            f.get("area_frac", 0.0) >= BIG_FRAC and f["gb"] >= BIG_GB and f["sat"] >= BIG_SAT and f["gsig"] >= BIG_SIGMA):
+            f["area_frac"] >= BIG_FRAC and f["gb"] >= BIG_GB and f["sat"] >= BIG_SAT and f["gsig"] >= BIG_SIGMA):
         # (a large candidate, ≥ 1 % of the window, needs less: soil tints that large are dull)
         # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
         return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR
