@@ -323,6 +323,29 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     if len(tips) == 0:
         yx = np.array(c0, float)
         return np.array([yx[1], yx[0]]), 0, 0.0
+    if len(tips) == 1:
+        # one tip (two opposite leaves or cotyledons, seen from inside one of them): Σ distance
+        # to it is least at the tip itself. The plant's far end from it is the other tip; the
+        # centre is the narrowest point (the stem between the two leaves) of the middle 70 % of
+        # the geodesic path between them
+        t0 = int(tips[0])
+        on_plant = node[plant]
+        d0 = rows[t0][on_plant]
+        far = int(on_plant[np.argmax(np.where(np.isfinite(d0), d0, -1.0))])
+        if far not in rows:
+            rows[far] = dijkstra(G, directed=False, indices=[far], limit=np.inf)[0]
+        tips = np.array([t0, far])
+        D0, D1 = rows[t0], rows[far]
+        L = float(D0[far])
+        yx = np.argwhere(node >= 0)  # node index → (y, x)
+        width = dt[yx[:, 0], yx[:, 1]]
+        path = (D0 + D1 <= L + 1.5) & (D0 >= 0.15 * L) & (D0 <= 0.85 * L)
+        if np.isfinite(L) and L > 0 and path.any():
+            F = np.where(path, L + width + 0.01 * np.abs(D0 - D1), np.inf)
+        else:
+            D = np.array([D0, D1])
+            F = D.sum(axis=0) + 0.1 * D.max(axis=0)
+            F[~np.isfinite(F)] = np.inf
     if out is not None:
         inv = np.argwhere(node >= 0)  # node index → (y, x)
         out["tips"] = inv[tips][:, ::-1].astype(float)

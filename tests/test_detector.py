@@ -778,6 +778,28 @@ def test_large_pale_yellow_green_rosettes_are_found() -> None:
     assert found >= 5, found
 
 
+def test_tree_median_of_two_leaves_seen_from_inside_one_is_at_the_stem() -> None:
+    """Two broad leaves (cotyledons) joined by a thin stem: seen from the deepest point, inside
+    the larger leaf, only the other leaf's end may stand out as a tip, and Σ distance to one tip
+    is least at that tip. The far end of the plant is then the second tip and the centre the
+    narrow stem between them (measured: 11 of 12 masks within 6 px of the stem's middle; 8 of 12
+    before, the other 3 at a leaf end ~50 px away)."""
+    from capm_field import plant_centre
+
+    rng = np.random.default_rng(5)
+    near = 0
+    for _ in range(12):
+        m = np.zeros((110, 90), np.uint8)
+        top = np.array([26 + rng.uniform(-3, 3), 26 + rng.uniform(-3, 3)])
+        bot = np.array([60 + rng.uniform(-3, 3), 80 + rng.uniform(-3, 3)])
+        cv2.ellipse(m, (int(top[0]), int(top[1])), (int(rng.uniform(15, 18)), int(rng.uniform(12, 15))), rng.uniform(30, 60), 0, 360, 1, -1)
+        cv2.ellipse(m, (int(bot[0]), int(bot[1])), (int(rng.uniform(12, 15)), int(rng.uniform(10, 13))), rng.uniform(30, 60), 0, 360, 1, -1)
+        cv2.line(m, (int(top[0]), int(top[1])), (int(bot[0]), int(bot[1])), 1, int(rng.integers(3, 6)))
+        uv, _, _ = plant_centre.tree_median(m.astype(bool))
+        near += math.hypot(uv[0] - 45.0, uv[1] - 52.0) < 6.0
+    assert near >= 11, near
+
+
 def test_five_kinds_from_another_renderer_with_a_roi() -> None:
     """25 weeds (grass, clover, seedling, rosette, lobed) from bench/other_renderer_plants.py,
     a renderer written without sim_bench or the detector, with a ROI around each (seed 7, not
