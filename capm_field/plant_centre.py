@@ -288,6 +288,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
 
     With the vegetation index `vi`, the cost is combined with leaf-axis convergence votes
     (`axis_votes`), which find the apex of fan-shaped plants (grass) where tips alone cannot.
+    With a single tip the centre is the stem between it and the plant's far end (see below).
     Returns ((x, y), number of tips, sharpness 0..1 of the minimum).
     """
     h, w = plant.shape
@@ -323,6 +324,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     if len(tips) == 0:
         yx = np.array(c0, float)
         return np.array([yx[1], yx[0]]), 0, 0.0
+    inv = np.argwhere(node >= 0) if len(tips) == 1 or out is not None else None  # node index → (y, x)
     if len(tips) == 1:
         # one tip (two opposite leaves or cotyledons, seen from inside one of them): Σ distance
         # to it is least at the tip itself. The plant's far end from it is the other tip; the
@@ -337,8 +339,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
         tips = np.array([t0, far])
         D0, D1 = rows[t0], rows[far]
         L = float(D0[far])
-        yx = np.argwhere(node >= 0)  # node index → (y, x)
-        width = dt[yx[:, 0], yx[:, 1]]
+        width = dt[inv[:, 0], inv[:, 1]]
         path = (D0 + D1 <= L + 1.5) & (D0 >= 0.15 * L) & (D0 <= 0.85 * L)
         if np.isfinite(L) and L > 0 and path.any():
             F = np.where(path, L + width + 0.01 * np.abs(D0 - D1), np.inf)
@@ -347,7 +348,6 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
             F = D.sum(axis=0) + 0.1 * D.max(axis=0)
             F[~np.isfinite(F)] = np.inf
     if out is not None:
-        inv = np.argwhere(node >= 0)  # node index → (y, x)
         out["tips"] = inv[tips][:, ::-1].astype(float)
     flat = np.full(h * w, np.inf)
     valid = node.ravel() >= 0
