@@ -1270,11 +1270,13 @@ def camera_fx(img, rng, tilt, notes, illum):
         notes.append(f"defocus {s:.1f}")
     elif r < 0.5:
         Lm = max(2, int(U(rng, 0.002, 0.008) * W))
-        ker = np.zeros((Lm, Lm), F32)
+        n = Lm | 1                      # odd size: filter2D's anchor is then the kernel's centre
+        ker = np.zeros((n, n), F32)
         a = U(rng, 0, np.pi)
-        c = (Lm - 1) / 2
-        cv2.line(ker, (int(round(c - c * math.cos(a))), int(round(c - c * math.sin(a)))),
-                 (int(round(c + c * math.cos(a))), int(round(c + c * math.sin(a)))), 1.0, 1, cv2.LINE_AA)
+        c, e = (n - 1) / 2, (Lm - 1) / 2
+        cv2.line(ker, (int(round(c - e * math.cos(a))), int(round(c - e * math.sin(a)))),
+                 (int(round(c + e * math.cos(a))), int(round(c + e * math.sin(a)))), 1.0, 1, cv2.LINE_AA)
+        ker = ker + ker[::-1, ::-1]     # point-symmetric: blurs without shifting the image off the truth
         img = cv2.filter2D(img, -1, ker / ker.sum())
         notes.append(f"motion {Lm}px")
     if tilt > 10 and rng.random() < 0.4:
@@ -1545,6 +1547,8 @@ def main(argv=None) -> int:
     ap.add_argument("--save-all", default=None)
     ap.add_argument("--cases", type=int, nargs="*", default=None, help="only these case indices")
     args = ap.parse_args(argv)
+    if args.cases and not all(0 <= c < args.n for c in args.cases):
+        ap.error(f"--cases must be in 0..{args.n - 1} (--n {args.n})")
     from capm_field.detector import detect_centre
 
     for d in (args.save_fails, args.save_all):
