@@ -175,7 +175,9 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             # be only the greenest part of a yellow-green plant, which −a* segments whole: take
             # the second look's choice when it scores clearly higher (bench seeds 0–3: wrong
             # 39 → 36, > 15 mm 110 → 106 for the small ones)
-            # (the second look's plant is chosen first; its centre is sought only if it is taken)
+            # (the second look's plant is chosen first; its centre is sought only if it is taken,
+            # by a full second-look run that repeats the choice: 22 of the 314 bench frames that
+            # get here, so resuming the first run was not worth its plumbing)
             second: dict = {}
             _detect(image_bgr, roi, None, vivid=True, first=second, win=win, choose_only=True)
             if second.get("best", 0.0) > SMALL_GAIN * first["best"]:

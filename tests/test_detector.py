@@ -569,11 +569,16 @@ def _lens_rosette(img: np.ndarray, rng: np.random.Generator, c: np.ndarray, L: f
     lens = np.sort(L * rng.uniform(0.45, 1.0, n))[::-1]
     lens[0] = L
     for a, ln in zip(angs, lens):
-        t = np.linspace(0, 1, 30)
-        hw = ln * rng.uniform(0.12, 0.22) * np.sin(np.pi * t**0.8)
-        pts = np.r_[np.c_[t * ln, hw], np.c_[t * ln, -hw][::-1]]
-        R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        cv2.fillPoly(img, [np.round((pts @ R.T + c) * 16).astype(np.int32)], col, cv2.LINE_AA, shift=4)
+        _lens_leaf(img, c, a, ln, rng.uniform(0.12, 0.22), col)
+
+
+def _lens_leaf(img: np.ndarray, c: np.ndarray, a: float, ln: float, width: float, col) -> None:
+    """One lens-shaped leaf from `c` along angle `a`, length `ln`, half-width ≤ width × ln."""
+    t = np.linspace(0, 1, 30)
+    hw = ln * width * np.sin(np.pi * t**0.8)
+    pts = np.r_[np.c_[t * ln, hw], np.c_[t * ln, -hw][::-1]]
+    R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    cv2.fillPoly(img, [np.round((pts @ R.T + c) * 16).astype(np.int32)], col, cv2.LINE_AA, shift=4)
 
 
 def test_uneven_lens_rosettes_centre_where_leaf_axes_meet() -> None:
@@ -744,12 +749,7 @@ def test_yellow_green_plant_with_one_greener_leaf_is_found_whole() -> None:
         img = _soil(rng, (720, 1280), colour=(95, 110, 115))
         c = np.array([640.0, 360.0])
         _lens_rosette(img, rng, c, 200.0, (35, 118, 116))
-        a, L = rng.uniform(0, 2 * np.pi), 190.0
-        t = np.linspace(0, 1, 30)
-        hw = L * 0.18 * np.sin(np.pi * t**0.8)
-        pts = np.r_[np.c_[t * L, hw], np.c_[t * L, -hw][::-1]]
-        R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        cv2.fillPoly(img, [np.round((pts @ R.T + c) * 16).astype(np.int32)], (40, 128, 110), cv2.LINE_AA, shift=4)
+        _lens_leaf(img, c, rng.uniform(0, 2 * np.pi), 190.0, 0.18, (40, 128, 110))
         img = cv2.GaussianBlur(img, (0, 0), 1.0)
         first = det_mod._detect(img, None)
         first_errs.append(math.hypot(first.pixel[0] - c[0], first.pixel[1] - c[1]))
