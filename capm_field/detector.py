@@ -278,7 +278,7 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     mid = _downscale(crop, MID_PX_STAGE1)
     s = max(1.0, max(crop.shape[:2]) / WORK_PX)
     if s > 1.0:
-        small = cv2.resize(mid, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))), interpolation=cv2.INTER_AREA)
+        small = _resize_down(mid, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))))
     else:
         small = crop
     sx, sy = crop.shape[1] / small.shape[1], crop.shape[0] / small.shape[0]
@@ -596,16 +596,52 @@ MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is compute
 MID_PX_STAGE2 = 120_000  # same for the plant crop (stage 2)
 
 
-def _downscale(bgr: np.ndarray, max_px: int) -> np.ndarray:
+def _resize_down(src: np.ndarray, size: tuple[int, int], exact: bool = False) -> np.ndarray:
+    """`src` area-resampled down to `size` (w, h), by OpenCV's fast paths.
+
+    cv2.INTER_AREA at a non-integer ratio takes a slow general path (2–3 ms for a 0.3 MP window,
+    a tenth of the frame budget); at an exact integer ratio it is a fast box average. So a ratio
+    r ≥ AREA_MIN_RATIO is done as a bilinear resampling to k × `size`, k = max(2, ⌊r⌋) (a ratio
+    r/k within [0.75, 1.5)), followed by the k × k box average: every source pixel keeps a
+    weight, thin stems are not skipped (mean difference to INTER_AREA ≈ 0.1–0.2 grey levels).
+    Below it, bilinear resampling (after a light blur, see below) touches every source pixel.
+    Stage 1 of a bench frame: −1.8 ms median latency (paired, seed 0); the benches moved by
+    their resampling noise (seeds 0–3: wrong centres 29 → 28, detections 996 → 994 of 1020).
+    exact=True: plain INTER_AREA, for stage 2 (the plant crop, where the centre is located; the
+    fast path saved no measurable time there).
+    """
+    nw, nh = size
+    h, w = src.shape[:2]
+    if (nw, nh) == (w, h):
+        return src
+    if exact:
+        return cv2.resize(src, (nw, nh), interpolation=cv2.INTER_AREA)
+    r = min(w / nw, h / nh)
+    if r < AREA_MIN_RATIO:
+        # bilinear alone averages less than the area filter where samples fall on pixel centres:
+        # the soil's noise would rise (and so the 5 σ threshold); a 3 × 3 Gaussian of σ = 0.3 r
+        # restores INTER_AREA's noise level within ~5 %
+        return cv2.resize(cv2.GaussianBlur(src, (3, 3), 0.3 * r), (nw, nh), interpolation=cv2.INTER_LINEAR)
+    k = max(2, int(r))
+    if (w, h) != (k * nw, k * nh):
+        src = cv2.resize(src, (k * nw, k * nh), interpolation=cv2.INTER_LINEAR)
+    return cv2.resize(src, (nw, nh), interpolation=cv2.INTER_AREA)
+
+
+AREA_MIN_RATIO = 1.5  # downscale ratio from which `_resize_down` box-averages
+
+
+def _downscale(bgr: np.ndarray, max_px: int, exact: bool = False) -> np.ndarray:
     """`bgr` itself if it has at most `max_px` pixels, else area-resampled down to that many."""
     h, w = bgr.shape[:2]
     g = max(1.0, math.sqrt(h * w / max_px))
     if g <= 1.0:
         return bgr
-    return cv2.resize(bgr, (max(1, round(w / g)), max(1, round(h / g))), interpolation=cv2.INTER_AREA)
+    return _resize_down(bgr, (max(1, round(w / g)), max(1, round(h / g))), exact)
 
 
-def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int, lab: bool = False) -> np.ndarray:
+def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int, lab: bool = False,
+                 exact: bool = False) -> np.ndarray:
     """Vegetation index of `bgr` on a coarser grid `size` (w, h), thin parts kept (max-pooling).
 
     Averaging colours before judging greenness dilutes 1–2 px stems, petioles and grass blades
@@ -614,7 +650,7 @@ def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_
     then max-pooled (grey dilation over one output cell, then area resampling) to `size`.
     """
     nw, nh = size
-    mid = _downscale(bgr, mid_px)
+    mid = _downscale(bgr, mid_px, exact)
     vi = vegetation_index(mid, gains=gains, lab=lab)
     # blur and dilate in place (same values): no further full-size temporaries
     cv2.GaussianBlur(vi, (0, 0), 0.7, dst=vi)
@@ -623,7 +659,7 @@ def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_
         return cv2.resize(vi, (nw, nh), interpolation=cv2.INTER_LINEAR) if (nw, nh) != (mid.shape[1], mid.shape[0]) else vi
     k = int(round(f))
     cv2.dilate(vi, np.ones((k, k), np.uint8), dst=vi)
-    return cv2.resize(vi, (nw, nh), interpolation=cv2.INTER_AREA)
+    return _resize_down(vi, (nw, nh), exact)
 
 
 def _threshold(v: np.ndarray) -> tuple[float, float, float]:
@@ -840,7 +876,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     k = PLANT_PX / max(bx1 - bx0, by1 - by0)
     nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
     kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
-    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab_index)
+    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab_index, exact=True)
     inside = np.ones(vi.shape, bool)
     if roi is not None:
         inside = _roi_mask(roi, vi.shape, X0, Y0, kx, ky)
