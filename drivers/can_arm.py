@@ -36,7 +36,7 @@ from .can.codec import (
 )
 from .can.config import CanArmConfig
 from .can.link import CanLink, wait_for
-from .interfaces import Arm, ArmState, DriverTimeout, LinkLost, MoveResult
+from .interfaces import Arm, ArmState, DriverTimeout, LinkLost, MoveResult, StateCallback, StateNotifier
 
 
 @dataclass
@@ -136,8 +136,21 @@ class CanArm(Arm):
     def _command(self, cmd: int) -> None:
         self.link.send(self.link.encoder.encode("ARM_CMD", {"Command": cmd}))
 
-    def _wait(self, pred: Callable[[], bool], deadline: float, what: str) -> None:
-        wait_for(self._cv, self.link, pred, deadline, what)
+    def _wait(self, pred: Callable[[], bool], deadline: float, what: str, on_poll: Callable[[], None] | None = None) -> None:
+        wait_for(self._cv, self.link, pred, deadline, what, on_poll)
+
+    def _poller(self, on_state: StateCallback | None) -> Callable[[], None] | None:
+        """A function handing each new joint-state sample to `on_state` (None without one)."""
+        if on_state is None:
+            return None
+        notify, seen = StateNotifier(on_state), [0]
+
+        def poll() -> None:
+            if self._q_stamp != seen[0]:
+                seen[0] = self._q_stamp
+                notify(self.state())
+
+        return poll
 
     def _ensure_enabled(self, deadline: float) -> None:
         if self._status["Enabled"]:
@@ -156,7 +169,8 @@ class CanArm(Arm):
         self._command(ARM_STOP)
         return MoveResult(False, reason, final=self._joints())
 
-    def stream(self, traj: Callable[[float], np.ndarray], duration: float, deadline: float) -> MoveResult | None:
+    def stream(self, traj: Callable[[float], np.ndarray], duration: float, deadline: float,
+               on_poll: Callable[[], None] | None = None) -> MoveResult | None:
         """Stream traj(t) for t in (0, duration] at the configured rate (absolute-time ticks).
 
         Trajectory time advances one period per target sent, not with the wall clock: if the
@@ -165,6 +179,7 @@ class CanArm(Arm):
         Ticks late by more than 5 periods are skipped, never burst.
         Returns None when the whole trajectory was sent, a failed MoveResult on a gateway fault;
         raises LinkLost / DriverTimeout (after STOP). Stats of the last stream: `last_stream`.
+        `on_poll` runs after every target sent (see `_poller`).
         """
         period = 1.0 / self.cfg.stream_rate_hz
         st = self.last_stream = StreamStats()
@@ -197,14 +212,17 @@ class CanArm(Arm):
             t = k * period
             self._send_target(traj(min(t, duration)))
             st.sent += 1
+            if on_poll is not None:
+                on_poll()
             if t >= duration:
                 st.duration_s = time.monotonic() - t0
                 return None
 
     # ---- Arm ---------------------------------------------------------------------------------
-    def move_joints(self, q: np.ndarray, timeout: float) -> MoveResult:
+    def move_joints(self, q: np.ndarray, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         deadline = time.monotonic() + timeout
         self._check()
+        poll = self._poller(on_state)
         q = np.asarray(q, dtype=float).reshape(6)
         if not np.all(np.isfinite(q)) or not within_limits(self.robot, q):
             return MoveResult(False, "joint_limit", final=self._joints())
@@ -214,7 +232,7 @@ class CanArm(Arm):
         if self.fault is not None:
             return MoveResult(False, self.fault, final=self._joints())
         traj = MinJerk(self._joints(), q, self.vmax)
-        failed = self.stream(traj, traj.duration, deadline)
+        failed = self.stream(traj, traj.duration, deadline, poll)
         if failed is not None:
             return failed
         try:
@@ -222,6 +240,7 @@ class CanArm(Arm):
                 lambda: self.fault is not None or float(np.max(np.abs(self._q - q))) < self.cfg.at_target_tol,
                 deadline,
                 "the arm to reach its target",
+                poll,
             )
         except DriverTimeout:
             self._command(ARM_STOP)
@@ -233,17 +252,18 @@ class CanArm(Arm):
             return self._fail(self.fault)
         return MoveResult(True, final=self._joints(), extra={"duration_s": traj.duration, "sent": self.last_stream.sent})
 
-    def move_to_pose(self, frame: str, T_base: np.ndarray, timeout: float) -> MoveResult:
+    def move_to_pose(self, frame: str, T_base: np.ndarray, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         deadline = time.monotonic() + timeout
         self._check()
         sol = solve_ik(self.robot, frame, T_base, self._joints())
         if sol is None:
             return MoveResult(False, "ik_failed", final=self._joints())
-        return self.move_joints(sol, max(0.0, deadline - time.monotonic()))
+        return self.move_joints(sol, max(0.0, deadline - time.monotonic()), on_state)
 
-    def stow(self, timeout: float) -> MoveResult:
+    def stow(self, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         deadline = time.monotonic() + timeout
         self._check()
+        poll = self._poller(on_state)
         if self.fault is not None:
             return MoveResult(False, self.fault, final=self._joints())
         self._ensure_enabled(deadline)
@@ -256,6 +276,7 @@ class CanArm(Arm):
                 or (self._status["Stowed"] and self._status["Mode"] == 1 and float(np.max(np.abs(self._q - stow_q))) < self.cfg.at_target_tol),
                 deadline,
                 "stow",
+                poll,
             )
         except (DriverTimeout, LinkLost):
             self._command(ARM_STOP)

@@ -12,12 +12,18 @@ adapter sends keep-alives only while `permit()` returns True (the executive's in
 duration has not elapsed, and the igniter board extinguishes on its own when keep-alives stop.
 Every error path of every adapter ends with `extinguish()` having been sent.
 
+Moves take an optional `on_state` callback: called in the caller's thread with each new state
+sample while the move runs (the executive logs the path the robot took from it). It must be
+quick; an exception from it is logged once per move and otherwise ignored (a logging fault must
+not leave a motion half done).
+
 Times are integer nanoseconds (`time.monotonic_ns()` for stamps unless stated), SI units elsewhere.
 """
 
 from __future__ import annotations
 
 import abc
+import logging
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -112,6 +118,28 @@ class MoveResult:
 
 
 # ---- interfaces ------------------------------------------------------------------------------
+StateCallback = Callable[[object], None]  # BodyState for the body, ArmState for the arm
+
+
+class StateNotifier:
+    """Calls a move's `on_state` with each state it is given; an exception from the callback is
+    logged once (per notifier, i.e. per move) and otherwise ignored."""
+
+    def __init__(self, on_state: StateCallback | None):
+        self.on_state = on_state
+        self._warned = False
+
+    def __call__(self, state: object) -> None:
+        if self.on_state is None:
+            return
+        try:
+            self.on_state(state)
+        except Exception:  # noqa: BLE001 - a logging fault must not break a motion
+            if not self._warned:
+                self._warned = True
+                logging.getLogger(__name__).exception("on_state callback failed (ignored for the rest of this move)")
+
+
 class _Closable(abc.ABC):
     def close(self) -> None:  # noqa: B027 - default: nothing to release
         """Release transports and stop background threads. Idempotent, never hangs."""
@@ -127,8 +155,9 @@ class Body(_Closable):
     """Spot body as a holonomic SE(2) platform at a fixed operating height."""
 
     @abc.abstractmethod
-    def move_to(self, goal: SE2, timeout: float) -> MoveResult:
-        """Walk to `goal` (field frame) and stop. Blocks until arrived, failed or timed out."""
+    def move_to(self, goal: SE2, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
+        """Walk to `goal` (field frame) and stop. Blocks until arrived, failed or timed out;
+        `on_state` gets the body states seen on the way (see the module docstring)."""
 
     @abc.abstractmethod
     def stop(self) -> None:
@@ -142,14 +171,15 @@ class Arm(_Closable):
     """Unitree Z1: joint-space moves; poses are solved by the caller or the adapter's IK."""
 
     @abc.abstractmethod
-    def move_joints(self, q: np.ndarray, timeout: float) -> MoveResult: ...
+    def move_joints(self, q: np.ndarray, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
+        """Move to joints `q`; `on_state` gets the arm states seen on the way."""
 
     @abc.abstractmethod
-    def move_to_pose(self, frame: str, T_base: np.ndarray, timeout: float) -> MoveResult:
+    def move_to_pose(self, frame: str, T_base: np.ndarray, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         """Move `frame` ('nozzle' | 'camera') to a pose in the arm-base frame (IK inside)."""
 
     @abc.abstractmethod
-    def stow(self, timeout: float) -> MoveResult: ...
+    def stow(self, timeout: float, on_state: StateCallback | None = None) -> MoveResult: ...
 
     @abc.abstractmethod
     def state(self) -> ArmState: ...

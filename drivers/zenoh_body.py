@@ -43,6 +43,8 @@ from drivers.interfaces import (
     LeaseRefused,
     LinkLost,
     MoveResult,
+    StateCallback,
+    StateNotifier,
 )
 
 log = logging.getLogger(__name__)
@@ -129,7 +131,7 @@ class ZenohBody(Body):
             raise
 
     # ---- Body --------------------------------------------------------------------------------
-    def move_to(self, goal: SE2, timeout: float) -> MoveResult:
+    def move_to(self, goal: SE2, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         if not all(math.isfinite(v) for v in goal.as_tuple()):
             raise ValueError(f"goal must be finite, got {goal}")
         t0 = time.monotonic()
@@ -146,8 +148,10 @@ class ZenohBody(Body):
         cmd_id = ack.get("cmd_id")
         if not isinstance(cmd_id, int):
             raise DriverError(f"robot acknowledged the move without a cmd_id: {ack}")
-        with self._cond:
-            while True:
+        notify = StateNotifier(on_state)
+        seen_rx = 0  # stamp of the last state handed to on_state (called outside the lock)
+        while True:
+            with self._cond:
                 res = self._results.get(cmd_id)
                 if res is None:
                     cur = (self._state or {}).get("cmd") or {}
@@ -163,6 +167,16 @@ class ZenohBody(Body):
                 if remaining <= 0:
                     break
                 self._cond.wait(min(remaining, 0.02))
+                fresh = on_state is not None and self._state is not None and self._state_rx_ns != seen_rx
+                if fresh:
+                    seen_rx = self._state_rx_ns
+            if fresh:
+                try:
+                    st = self.state()
+                except DriverError:  # the next pass of the loop finds the link error and stops the body
+                    st = None
+                if st is not None:
+                    notify(st)
         if res is None:
             self.stop()
             raise DriverTimeout(f"move {cmd_id} to {goal} not done within {timeout} s (body stopped)")

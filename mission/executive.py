@@ -35,6 +35,9 @@ from .ordering import order_trois
 from .ordering import x_kmax as x_kmax_of
 
 
+TF_PERIOD_NS = 100_000_000  # /tf while the body or the arm moves: at most every 0.1 s of the run's clock
+
+
 class MissionAborted(RuntimeError):
     """Link loss, E-stop or another condition under which the mission must not go on."""
 
@@ -157,7 +160,8 @@ class Executive:
 
     def _tf(self) -> None:
         """/tf at this instant (before and after every body and arm move); an identical sample at
-        the same time as the last one is not written again."""
+        the same time as the last one is not written again. During a move, `_tf_body` /
+        `_tf_arm` add samples from the driver's state stream (`on_state`)."""
         if self.log:
             try:
                 t, pose, q = self.now_ns(), self.d.body.state().pose, tuple(float(v) for v in self.d.arm.state().joints)
@@ -167,6 +171,26 @@ class Executive:
             if key != self._last_tf:
                 self._last_tf = key
                 self.log.transforms(t, pose, q)
+
+    def _tf_body(self, st) -> None:
+        """on_state of a walk: the body's pose on the way (the arm stays as last drawn)."""
+        self._tf_moving(pose=st.pose.as_tuple())
+
+    def _tf_arm(self, st) -> None:
+        """on_state of an arm move: its joints on the way (the body stays as last drawn)."""
+        self._tf_moving(joints=tuple(float(v) for v in st.joints))
+
+    def _tf_moving(self, pose: tuple | None = None, joints: tuple | None = None) -> None:
+        """/tf during a move, at most every TF_PERIOD_NS, completing the sample from the last one."""
+        if not self.log or self._last_tf is None:
+            return
+        t = self.now_ns()
+        t_last, pose_last, q_last = self._last_tf
+        if t - t_last < TF_PERIOD_NS:
+            return
+        key = (t, pose if pose is not None else pose_last, joints if joints is not None else q_last)
+        self._last_tf = key
+        self.log.transforms(t, SE2(*key[1]), key[2])
 
     def _ks(self, tid: str, ks: KeyState, note: str = "") -> None:
         if self.log:
@@ -207,7 +231,7 @@ class Executive:
         st = self.d.arm.state()
         if np.max(np.abs(np.asarray(st.joints) - np.asarray(self.robot.cfg.arm.stow_joints))) < 1e-2 and not st.moving:
             return
-        r = self.d.arm.stow(self.timeouts["arm"])
+        r = self.d.arm.stow(self.timeouts["arm"], on_state=self._tf_arm)
         self._tf()
         if not r.ok:
             raise _Skip(f"arm_stow_failed:{r.reason}")
@@ -217,7 +241,7 @@ class Executive:
         self._stow()
         before = self.d.body.state().pose
         self._tf()
-        r = self.d.body.move_to(goal, self.timeouts["body"])
+        r = self.d.body.move_to(goal, self.timeouts["body"], on_state=self._tf_body)
         after = self._settled_pose(r.final)
         self._tf()
         c = energy.cost(before, after, self.task, force_move=forced)
@@ -231,7 +255,7 @@ class Executive:
             # Slipped: arrived off the planned stop (regions are planned with the placement
             # tolerance only). One corrective move, charged like any other.
             self._event("warning", f"{self._tid}: arrived {err:.3f} m off the goal (slip?), correcting once", target=self._tid)
-            r = self.d.body.move_to(goal, self.timeouts["body"])
+            r = self.d.body.move_to(goal, self.timeouts["body"], on_state=self._tf_body)
             fixed = self._settled_pose(r.final)
             self._tf()
             c2 = energy.cost(after, fixed, self.task)
@@ -276,13 +300,13 @@ class Executive:
         return st.pose
 
     def _arm_to(self, sol: ArmSolution) -> None:
-        r = self.d.arm.move_joints(sol.q, self.timeouts["arm"])
+        r = self.d.arm.move_joints(sol.q, self.timeouts["arm"], on_state=self._tf_arm)
         self._tf()
         if not r.ok and self.d.arm.state().fault:
             # A latched arm fault: reset once and retry the move (then give up on the target).
             self._event("warning", f"arm fault {self.d.arm.state().fault}: reset and retry once")
             self.d.arm.reset(self.timeouts["arm"])
-            r = self.d.arm.move_joints(sol.q, self.timeouts["arm"])
+            r = self.d.arm.move_joints(sol.q, self.timeouts["arm"], on_state=self._tf_arm)
             self._tf()
         if not r.ok:
             raise _Skip(f"arm_motion_failed:{r.reason}")

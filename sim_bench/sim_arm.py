@@ -14,7 +14,7 @@ import numpy as np
 
 from capm_field.robot_model import RobotModel
 from drivers.arm_common import MinJerk, arm_state, solve_ik, within_limits
-from drivers.interfaces import Arm, ArmState, DriverTimeout, LinkLost, MoveResult
+from drivers.interfaces import Arm, ArmState, DriverTimeout, LinkLost, MoveResult, StateCallback, StateNotifier
 
 from .sim_clock import SimClock
 
@@ -130,6 +130,9 @@ class ArmPlant:
         return bool(np.max(np.abs(self.q - self.stow_q)) < self.tol)
 
 
+NOTIFY_PERIOD_S = 0.02  # simulated seconds between on_state calls during a move (the sim body's step)
+
+
 class SimArmDriver(Arm):
     """In-process Z1 on a simulated clock: same contract as `CanArm`, no bus, deterministic."""
 
@@ -144,6 +147,7 @@ class SimArmDriver(Arm):
         self.robot = robot or RobotModel()
         self.clock = clock or SimClock()
         self.dt = dt
+        self._ticks = 0
         self.tol = at_target_tol
         self.plant = plant or ArmPlant(self.robot)
         self.hooks = ArmFaultHooks()
@@ -157,9 +161,14 @@ class SimArmDriver(Arm):
             self.plant.stop()
             raise LinkLost("simulated link loss")
 
-    def _tick(self) -> None:
+    def _tick(self, notify: StateNotifier | None = None) -> None:
         self.plant.step(self.dt)
         self.clock.sleep(self.dt)
+        self._ticks += 1
+        # on_state every NOTIFY_PERIOD_S, not every 2 ms step: each state costs two
+        # forward-kinematics solves (every step: +80 % wall time of the bench mission)
+        if notify is not None and self._ticks % max(1, round(NOTIFY_PERIOD_S / self.dt)) == 0:
+            notify(self.state())
 
     def _fail(self, reason: str) -> MoveResult:
         self.plant.stop()
@@ -171,8 +180,9 @@ class SimArmDriver(Arm):
         self.plant.reset()
 
     # ---- Arm -------------------------------------------------------------------------------
-    def move_joints(self, q: np.ndarray, timeout: float) -> MoveResult:
+    def move_joints(self, q: np.ndarray, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         self._check_link()
+        notify = StateNotifier(on_state)
         q = np.asarray(q, dtype=float).reshape(6)
         if not np.all(np.isfinite(q)) or not within_limits(self.robot, q):
             return MoveResult(False, "joint_limit", final=self.plant.q.copy())
@@ -195,19 +205,20 @@ class SimArmDriver(Arm):
                 if self.plant.fault:
                     return self._fail(self.plant.fault)
             elif np.max(np.abs(self.plant.q - q)) < self.tol:
-                self._tick()  # one more state sample, as on the wire
+                self._tick(notify)  # one more state sample, as on the wire
                 return MoveResult(True, final=self.plant.q.copy(), extra={"duration_s": traj.duration})
-            self._tick()
+            self._tick(notify)
 
-    def move_to_pose(self, frame: str, T_base: np.ndarray, timeout: float) -> MoveResult:
+    def move_to_pose(self, frame: str, T_base: np.ndarray, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         self._check_link()
         sol = None if self.hooks.fail_ik else solve_ik(self.robot, frame, T_base, self.plant.q)
         if sol is None:
             return MoveResult(False, "ik_failed", final=self.plant.q.copy())
-        return self.move_joints(sol, timeout)
+        return self.move_joints(sol, timeout, on_state)
 
-    def stow(self, timeout: float) -> MoveResult:
+    def stow(self, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         self._check_link()
+        notify = StateNotifier(on_state)
         if self.plant.fault:
             return MoveResult(False, self.plant.fault, final=self.plant.q.copy())
         t_end = self.clock.now() + timeout
@@ -220,7 +231,7 @@ class SimArmDriver(Arm):
             if self.clock.now() >= t_end:
                 self.plant.stop()
                 raise DriverTimeout(f"stow not finished within {timeout:.3f} s")
-            self._tick()
+            self._tick(notify)
         return MoveResult(True, final=self.plant.q.copy())
 
     def state(self) -> ArmState:

@@ -18,7 +18,7 @@ import numpy as np
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2, wrap_angle
 from drivers.body_server import MoveStatus
-from drivers.interfaces import Body, BodyState, DriverTimeout, EStopActive, LinkLost, MoveResult
+from drivers.interfaces import Body, BodyState, DriverTimeout, EStopActive, LinkLost, MoveResult, StateCallback, StateNotifier
 
 from .sim_clock import SimClock
 
@@ -251,11 +251,12 @@ class SimBodyDriver(Body):
             self.sim.stop("link_lost")  # the robot side stops itself when its commander vanishes
             raise LinkLost("simulated body link loss")
 
-    def move_to(self, goal: SE2, timeout: float) -> MoveResult:
+    def move_to(self, goal: SE2, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
         if not all(math.isfinite(v) for v in goal.as_tuple()):
             raise ValueError(f"goal must be finite, got {goal}")
         self._check_link()
         sim, clock = self.sim, self.sim.clock
+        notify = StateNotifier(on_state)
         if sim.frozen:
             clock.advance(timeout)
             raise DriverTimeout(f"body did not answer within {timeout} s (frozen)")
@@ -272,6 +273,7 @@ class SimBodyDriver(Body):
                 raise DriverTimeout(f"move to {goal} not done within {timeout} s")
             clock.advance(min(self.step_s, (deadline - clock.now_ns()) * 1e-9))
             sim.step_to(clock.now_ns())
+            notify(sim.snapshot())
         extra = {"cmd_id": st.cmd_id, "duration_s": (clock.now_ns() - t0) * 1e-9, "distance_m": sim.odometry_m - d0}
         if st.status == "estop":
             raise EStopActive(f"E-stop engaged during the move ({st.reason})")

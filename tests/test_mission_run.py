@@ -74,6 +74,29 @@ def test_flame_only_inside_the_interlock_in_the_log(run_c):
         assert st.interlock_ok and st.body_stationary and st.epmc_ok and not st.estop
 
 
+def test_tf_follows_the_walks_and_arm_moves(run_c):
+    """/tf is written during every body and arm move (the drivers' on_state), not only at their
+    ends: the body's path in the log has no jump longer than 0.1 s of walking, and the log
+    time between samples while moving stays near the 0.1 s period."""
+    import math
+
+    from mission.runlog_read import iter_run
+
+    _, out = run_c
+    path = []
+    for m in iter_run(out / "run.mcap", topics={"/tf"}):
+        body = next(t for t in m.data.transforms if t.child_frame_id == "body")
+        path.append((m.log_time, body.translation.x, body.translation.y))
+    steps = [(t1 - t0, math.hypot(x1 - x0, y1 - y0)) for (t0, x0, y0), (t1, x1, y1) in zip(path, path[1:])]
+    walked = sum(d for _, d in steps)
+    assert walked > 3.0  # three targets and the end pose, metres
+    v_max = 0.8  # BodyConfig.max_speed
+    assert max(d for _, d in steps) <= v_max * 0.1 + 0.03
+    moving = [dt for dt, d in steps if d > 1e-4]
+    assert len(moving) > walked / (v_max * 0.1) * 0.8
+    assert max(moving) < 0.2e9
+
+
 def test_interlock_denies_each_unsafe_condition(robot, core, task):
     from capm_field.arm_poses import flame_solution
     from capm_field.reachability import FlameSolver

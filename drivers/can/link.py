@@ -183,17 +183,23 @@ class CanLink(can.Listener):
             self.bus.shutdown()
 
 
-def wait_for(cv: threading.Condition, link: "CanLink", pred: Callable[[], bool], deadline: float, what: str) -> None:
+def wait_for(cv: threading.Condition, link: "CanLink", pred: Callable[[], bool], deadline: float, what: str,
+             on_poll: Callable[[], None] | None = None) -> None:
     """Wait on `cv` until `pred()` holds; DriverTimeout at `deadline` (monotonic s), LinkLost as
-    soon as the link reports the peer lost (only once the peer has been seen at all)."""
-    with cv:
-        while not pred():
+    soon as the link reports the peer lost (only once the peer has been seen at all).
+    `on_poll`, if given, runs after every wake-up (≤ 20 ms apart), outside the lock."""
+    while True:
+        with cv:
+            if pred():
+                return
             left = deadline - time.monotonic()
             if left <= 0:
                 raise DriverTimeout(f"timed out waiting for {what}")
             cv.wait(min(left, 0.02))
             if link.lost_reason is not None and link.peer_seen.is_set():
                 raise LinkLost(link.lost_reason)
+        if on_poll is not None:
+            on_poll()
 
 
 def heartbeat_id(node: int) -> int:

@@ -119,6 +119,21 @@ def test_stow_returns_home(rig):
     assert np.allclose(rig.arm.state().joints, STOW, atol=2e-3)
 
 
+def test_on_state_reports_the_moves_on_the_way(rig):
+    """`on_state` of move_joints and stow gets joint states with rising stamps, from between the
+    start and the goal."""
+    seen: list[ArmState] = []
+    assert rig.arm.move_joints(Q_A, timeout=5.0, on_state=seen.append).ok
+    assert len(seen) >= 5
+    stamps = [s.stamp_ns for s in seen]
+    assert stamps == sorted(stamps)
+    frac = [float(np.linalg.norm(np.asarray(s.joints) - STOW) / np.linalg.norm(Q_A - STOW)) for s in seen]
+    assert any(0.2 < f < 0.8 for f in frac) and frac[-1] > 0.9
+    back: list[ArmState] = []
+    assert rig.arm.stow(timeout=5.0, on_state=back.append).ok
+    assert len(back) >= 2 and np.allclose(back[-1].joints, STOW, atol=0.05)
+
+
 def test_timeout_raises_and_stops(rig):
     with pytest.raises(DriverTimeout):
         rig.arm.move_joints(Q_A, timeout=0.2)

@@ -80,6 +80,31 @@ def test_move_arrives_and_meters_distance(harness):
     assert r.extra["distance_m"] == pytest.approx(math.hypot(0.6, 0.3), abs=0.03)
 
 
+def test_on_state_reports_the_path_and_a_failing_callback_does_not_stop_the_move(harness):
+    """`on_state` gets the states of the walk in order (stamps rising, the pose advancing
+    towards the goal); a callback that raises is ignored and the move still arrives."""
+    goal = SE2(0.8, 0.0, 0.0)
+    seen: list[BodyState] = []
+    r = harness.body.move_to(goal, timeout=10.0, on_state=seen.append)
+    assert r.ok, r
+    assert len(seen) >= 5
+    stamps = [s.stamp_ns for s in seen]
+    assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+    xs = [s.pose.x for s in seen]
+    assert any(0.1 < x < 0.7 for x in xs)  # samples from the middle of the walk, not only its ends
+    assert all(b >= a - 1e-3 for a, b in zip(xs, xs[1:]))
+
+    calls = []
+
+    def broken(st: BodyState) -> None:
+        calls.append(st)
+        raise RuntimeError("log full")
+
+    r = harness.body.move_to(SE2(0.0, 0.0, 0.0), timeout=10.0, on_state=broken)
+    assert r.ok and r.final.distance(SE2(0.0, 0.0, 0.0)) < 0.03
+    assert len(calls) >= 2  # kept being called: one failure does not end the move
+
+
 def test_timeout_stops_the_body(harness):
     with pytest.raises(DriverTimeout):
         harness.body.move_to(SE2(5.0, 0.0, 0.0), timeout=0.3)
