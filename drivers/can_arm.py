@@ -36,7 +36,15 @@ from .can.codec import (
 )
 from .can.config import CanArmConfig
 from .can.link import CanLink, wait_for
-from .interfaces import Arm, ArmState, DriverTimeout, LinkLost, MoveResult, StateCallback, StateNotifier
+from .interfaces import (
+    Arm,
+    ArmState,
+    DriverTimeout,
+    LinkLost,
+    MoveResult,
+    StateCallback,
+    StateNotifier,
+)
 
 
 @dataclass

@@ -14,7 +14,15 @@ import numpy as np
 
 from capm_field.robot_model import RobotModel
 from drivers.arm_common import MinJerk, arm_state, solve_ik, within_limits
-from drivers.interfaces import Arm, ArmState, DriverTimeout, LinkLost, MoveResult, StateCallback, StateNotifier
+from drivers.interfaces import (
+    Arm,
+    ArmState,
+    DriverTimeout,
+    LinkLost,
+    MoveResult,
+    StateCallback,
+    StateNotifier,
+)
 
 from .sim_clock import SimClock
 
