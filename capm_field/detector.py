@@ -733,8 +733,9 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
     gb: median (G − B)/(R + G + B + 30) after the soil white balance (leaves reflect far more
     green than blue; grey stones turned cyan-green by the white balance and straw do not),
     gr: the same with G − R (blue-green leaves, whose gb is low), sat: median saturation after
-    white balance, g_raw: median (G − max(R, B))/(R + G + B + 30) before it, mass: Σ (index −
-    soil), d: distance of the centroid from the ROI centre in ROI radii.
+    white balance, g_raw: median (G − max(R, B))/(R + G + B + 30) before it, sat_raw: median
+    saturation before it (a neutral stone is ≈ 0 there whatever the white balance makes of it),
+    mass: Σ (index − soil), d: distance of the centroid from the ROI centre in ROI radii.
     """
     v = vi[gm]
     raw = small[gm].astype(np.float32)
@@ -758,6 +759,7 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
         gr=float(np.median((pc[:, 1] - pc[:, 2]) / (pc.sum(1) + 30))),
         sat=float(np.median((mx - mn) / (mx + 1))),
         g_raw=float(np.median((raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / (raw.sum(1) + 30))),
+        sat_raw=float(np.median((raw.max(1) - raw.min(1)) / (raw.max(1) + 1))),
         mass=float(np.sum(v - soil)),
         d=math.hypot(xs.mean() - cen[0], ys.mean() - cen[1]) / rad,
     )
@@ -778,7 +780,7 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     Measured on the bench candidates (bench/perception_candidates.py, docs/perception.md):
     live leaves have gb ≥ 0.07 and saturation ≥ 0.2 after white balance, and either a clear
     absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
-    Grey-green (dull) and blue-green (teal) leaves have rules of their own. The second look
+    Grey-green (dull), glaucous and blue-green (teal) leaves have rules of their own. The second look
     (`vivid`, −a*) takes vivid colours, teal leaves, and any candidate of ≥ BIG_FRAC of the
     window (`area_frac`) with gb ≥ BIG_GB, saturation ≥ BIG_SAT and ≥ BIG_SIGMA σ.
     """
@@ -800,6 +802,13 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     if not vivid and f["gsig"] >= STRONG_SIGMA and f["g_p90"] >= 0.035 and f["gb"] >= DULL_GB and f["gr"] >= DULL_GR \
             and f["sat"] >= DULL_SAT and f["g_raw"] >= DULL_RAW:
         return True
+    # glaucous or dulled leaves of middling contrast (8–12 σ) whose green is clear after the
+    # white balance (G* p90 ≥ 0.05) but only a little above blue: coloured in the raw image too
+    # (a neutral stone that the white balance on a purplish soil turns just as green is not:
+    # sat_raw ≤ 0.04 measured). Other renderer +1 %, photo-like seeds 0–6: +4 answers
+    if not vivid and f["gsig"] >= GLAUC_SIGMA and f["g_p90"] >= GLAUC_G90 and f["gb"] >= GLAUC_GB \
+            and f["gr"] >= GLAUC_GR and f["sat"] >= GLAUC_SAT and f["g_raw"] >= GLAUC_RAW and f["sat_raw"] >= GLAUC_SAT_RAW:
+        return True
     # blue-green (glaucous) leaves: green barely above blue (gb < 0.07) but far above red,
     # further than any soil, stone or straw of the bench (gr ≤ 0.07 on its bare-soil frames)
     return not vivid and f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 \
@@ -807,6 +816,8 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
 
 
 DULL_GB, DULL_GR, DULL_SAT, DULL_RAW = 0.02, 0.03, 0.15, 0.02
+GLAUC_SIGMA, GLAUC_G90, GLAUC_GB, GLAUC_GR, GLAUC_SAT = 8.0, 0.05, 0.03, 0.015, 0.17
+GLAUC_RAW, GLAUC_SAT_RAW = -0.01, 0.10  # the rescued leaves measured sat_raw 0.12–0.30
 TEAL_GB, TEAL_SAT = 0.01, 0.22
 TEAL_GR, TEAL_GR_WEAK = 0.12, 0.08  # gr = median (G − R)/(R + G + B + 30) after white balance
 

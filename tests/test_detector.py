@@ -845,3 +845,18 @@ def test_fast_downscale_matches_area_resampling(ratio: float) -> None:
         kept = int(_resize_down(line, sz)[..., 1].max())
         area = int(cv2.resize(line, sz, interpolation=cv2.INTER_AREA)[..., 1].max())
         assert kept >= 0.7 * area, (x, kept, area)
+
+
+def test_glaucous_rule_takes_coloured_leaves_not_neutral_stones() -> None:
+    """Middling-contrast blue-green leaves (features measured on another renderer's glaucous
+    plant, rejected by every other colour rule) are plant-like; the same features with the raw
+    saturation of a neutral stone (which the white balance on a purplish soil turns as green)
+    are not."""
+    from capm_field.detector import _plant_like
+
+    leaf = dict(area=161.0, gsig=14.2, g_p90=0.078, gb=0.064, gr=0.040, sat=0.22, g_raw=0.0, sat_raw=0.30,
+                elong=1.2, area_frac=0.003, d=0.68)
+    assert _plant_like(leaf)
+    assert not _plant_like(dict(leaf, sat_raw=0.03))
+    assert not _plant_like(dict(leaf, gsig=6.0))  # too close to the soil's noise
+    assert not _plant_like(leaf, vivid=True)  # the second look keeps its own, vivid-only rules
