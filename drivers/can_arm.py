@@ -47,6 +47,9 @@ from .interfaces import (
 )
 
 
+ON_STATE_PERIOD_NS = 10_000_000  # on_state of a move: at most every 10 ms of state stamps
+
+
 @dataclass
 class StreamStats:
     sent: int = 0  # target pairs sent
@@ -148,14 +151,17 @@ class CanArm(Arm):
         wait_for(self._cv, self.link, pred, deadline, what, on_poll)
 
     def _poller(self, on_state: StateCallback | None) -> Callable[[], None] | None:
-        """A function handing each new joint-state sample to `on_state` (None without one)."""
+        """A function handing new joint-state samples to `on_state`, at most one per
+        ON_STATE_PERIOD_NS (a state costs two forward-kinematics solves, and `poll` runs in the
+        500 Hz streaming loop); None without a callback."""
         if on_state is None:
             return None
         notify, seen = StateNotifier(on_state), [0]
 
         def poll() -> None:
-            if self._q_stamp != seen[0]:
-                seen[0] = self._q_stamp
+            stamp = self._q_stamp
+            if stamp - seen[0] >= ON_STATE_PERIOD_NS:
+                seen[0] = stamp
                 notify(self.state())
 
         return poll
