@@ -87,6 +87,18 @@ def test_grey_stones_on_reddish_soil_are_not_plants() -> None:
     assert det.reason == "no_plant", det
 
 
+@pytest.mark.parametrize("stone", [(120, 125, 125), (200, 200, 195), (150, 150, 150)])
+def test_grey_stones_on_purplish_soil_are_not_plants(stone) -> None:
+    """On a soil whose green is its weakest channel, the white balance turns neutral stones
+    green in every colour test after it; before it they are neutral (G − (R + B)/2 ≈ 0)."""
+    rng = np.random.default_rng(11)
+    img = _soil(rng, colour=(100, 90, 150))
+    for c, r in (((300, 200), 16), ((360, 260), 12), ((250, 300), 18)):
+        cv2.circle(img, c, r, stone, -1, cv2.LINE_AA)
+    det = detect_centre(img, Roi.from_ellipse((320, 240), (200, 200)))
+    assert det.reason == "no_plant", det
+
+
 def test_straw_is_not_a_plant() -> None:
     """A straight olive-yellow straw piece (greenish after white balance) is not a weed."""
     rng = np.random.default_rng(7)
@@ -855,7 +867,7 @@ def test_glaucous_rule_takes_coloured_leaves_not_neutral_stones() -> None:
     from capm_field.detector import _plant_like
 
     leaf = dict(area=161.0, gsig=14.2, g_p90=0.078, gb=0.064, gr=0.040, sat=0.22, g_raw=0.0, sat_raw=0.30,
-                elong=1.2, area_frac=0.003, d=0.68)
+                gm_raw=0.044, elong=1.2, area_frac=0.003, d=0.68)
     assert _plant_like(leaf)
     assert not _plant_like(dict(leaf, sat_raw=0.03))
     assert not _plant_like(dict(leaf, gsig=6.0))  # too close to the soil's noise
