@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from capm_field.camera import PinholeCamera
@@ -220,6 +220,9 @@ def test_invariant_checker_catches_a_violation(core, tmp_path):
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 10_000))
+# found by a fresh CI machine: an E-stop and a 150 ms host stall at the same instant of a hold;
+# the denied sample was stamped before the stall, the flame-off one after it (a log artefact)
+@example(seed=3677)
 def test_random_fault_schedules_keep_the_ignition_invariant(core, tmp_path_factory, seed):
     trois = [TROI(1.0, 0.3, 0.22, "A"), TROI(1.8, 0.9, 0.25, "B")]
     faults = random_faults(seed, len(trois))
