@@ -6,7 +6,8 @@ Classical pipeline, no learned weights, sizes relative to the plant or the searc
      ROI_MARGIN) at ≤ WORK_PX; vegetation index G* = (G − max(R, B))/(R + G + B + 30) after a
      white balance that maps the soil to a typical soil colour, max-pooled so thin blades and
      stalks survive; threshold at soil + 5 σ with hysteresis; components whose own colour is
-     not a plant's (stones, straw) dropped; the rest grouped into plants and scored by green
+     not a plant's (stones, straw; anything not greener than magenta in the camera's own
+     colours) dropped; the rest grouped into plants and scored by green
      area and centrality; none → "no_plant", a close runner-up → "ambiguous". Either answer,
      or a small (seedling-sized) first choice, gets a second look on CIELAB −a* (yellow-green
      leaves) that accepts vivid plants only;
