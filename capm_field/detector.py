@@ -826,8 +826,8 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
 
 DULL_GB, DULL_GR, DULL_SAT, DULL_RAW = 0.02, 0.03, 0.15, 0.02
 GM_RAW_MIN = 0.009  # bench weeds measured ≥ 0.017 (1 % ≤ 0.032), a bluish grass of another renderer 0.010,
-# neutral stones ≤ 0.007 (synthetic stones on 12 soils under 4 casts: plant answers 51 → 35 of 384,
-# the rest under a green cast, which makes them green in the raw image too)
+# neutral stones ≤ 0.007 (bench/stones_on_soils.py, 12 soils × 8 greys × 4 casts: plant answers
+# 44 → 31 of 384; 20 of the rest under a green cast, which makes the stones green in the raw image too)
 GLAUC_SIGMA, GLAUC_G90, GLAUC_GB, GLAUC_GR, GLAUC_SAT = 8.0, 0.05, 0.03, 0.015, 0.17
 GLAUC_RAW, GLAUC_SAT_RAW = -0.01, 0.10  # the rescued leaves measured sat_raw 0.12–0.30
 TEAL_GB, TEAL_SAT = 0.01, 0.22
