@@ -31,11 +31,12 @@ STONES_BGR = [(170, 175, 175), (150, 150, 150), (120, 125, 125), (200, 200, 195)
 CASTS_BGR = {"none": (1.0, 1.0, 1.0), "blue shade": (1.15, 1.0, 0.9), "green": (0.9, 1.1, 0.95), "warm": (0.85, 1.0, 1.1)}
 
 
-def frame(rng: np.random.Generator, soil, stone, cast) -> np.ndarray:
+def frame(rng: np.random.Generator, soil, stone) -> np.ndarray:
+    """Textured soil with three stones, float BGR in 0..255 (a cast multiplies it before rounding)."""
     img = cv2.GaussianBlur(rng.normal(0, 12, (480, 640, 3)), (0, 0), 1.0) + soil
     for c in ((300, 200), (360, 260), (250, 300)):
         cv2.circle(img, c, int(rng.integers(8, 20)), stone, -1, cv2.LINE_AA)
-    return np.clip(img * np.asarray(cast), 0, 255).astype(np.uint8)
+    return np.clip(img, 0, 255)
 
 
 def main(argv=None) -> int:
@@ -48,7 +49,7 @@ def main(argv=None) -> int:
     n = 0
     for (si, soil), (ti, stone) in itertools.product(enumerate(SOILS_BGR), enumerate(STONES_BGR)):
         rng = np.random.default_rng([a.seed, si, ti])
-        base = frame(rng, soil, stone, (1.0, 1.0, 1.0)).astype(np.float64)
+        base = frame(rng, soil, stone)
         for name, cast in CASTS_BGR.items():
             img = np.clip(base * np.asarray(cast), 0, 255).astype(np.uint8)
             n += 1

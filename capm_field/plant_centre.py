@@ -317,9 +317,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
         new = [t for t in tips.tolist() if t not in rows]
         if new:  # each source's row is computed on its own: the same as in a call with all tips
             rows.update(zip(new, dijkstra(G, directed=False, indices=new, limit=np.inf)))
-        D = np.array([rows[t] for t in tips.tolist()])
-        F = D.sum(axis=0) + 0.1 * D.max(axis=0)
-        F[~np.isfinite(F)] = np.inf
+        F = _tip_cost(np.array([rows[t] for t in tips.tolist()]))
         centre_node = int(np.argmin(F))
     if len(tips) == 0:
         yx = np.array(c0, float)
@@ -342,11 +340,10 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
         width = dt[inv[:, 0], inv[:, 1]]
         path = (D0 + D1 <= L + 1.5) & (D0 >= 0.15 * L) & (D0 <= 0.85 * L)
         if np.isfinite(L) and L > 0 and path.any():
-            F = np.where(path, L + width + 0.01 * np.abs(D0 - D1), np.inf)
+            F = np.full(D0.shape, np.inf)  # on the path only (elsewhere D0 − D1 may be ∞ − ∞)
+            F[path] = L + width[path] + 0.01 * np.abs(D0[path] - D1[path])
         else:
-            D = np.array([D0, D1])
-            F = D.sum(axis=0) + 0.1 * D.max(axis=0)
-            F[~np.isfinite(F)] = np.inf
+            F = _tip_cost(np.array([D0, D1]))
     if out is not None:
         out["tips"] = inv[tips][:, ::-1].astype(float)
     flat = np.full(h * w, np.inf)
@@ -377,6 +374,14 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     rise = float(np.nanmin(np.where(ring & np.isfinite(win), win, np.nan))) - fmin if ring.any() else 0.0
     sharp = float(np.clip(rise / (0.02 * fmin + 1e-6), 0, 1)) if np.isfinite(rise) else 0.0
     return np.array([cx, cy]), len(tips), sharp
+
+
+def _tip_cost(D: np.ndarray) -> np.ndarray:
+    """Tree-median cost per node from the geodesic distances D (tips × nodes): Σ over the tips
+    plus a tenth of the farthest (a tie-break towards the middle); ∞ where a tip is unreachable."""
+    F = D.sum(axis=0) + 0.1 * D.max(axis=0)
+    F[~np.isfinite(F)] = np.inf
+    return F
 
 
 VOTE_WEIGHT = 2.0
