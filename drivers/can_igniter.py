@@ -31,7 +31,7 @@ from .can.codec import (
 )
 from .can.config import CanIgniterConfig
 from .can.link import CanLink, wait_for
-from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult
+from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult, credited_flame_s
 
 # board events that come with the board disarming itself (reported as ignite()'s reason)
 TRIP_EVENTS = ("keepalive_timeout", "bad_frame", "host_lost")
@@ -152,6 +152,7 @@ class CanIgniter(Igniter):
                 return result(False, "permit_denied")
             ka_period = 1.0 / self.cfg.keepalive_rate_hz
             next_ka = time.monotonic()
+            last_ka = next_ka  # (the first IGNITE goes out on the first pass)
             while True:
                 now = time.monotonic()
                 with self._cv:
@@ -166,7 +167,7 @@ class CanIgniter(Igniter):
                 if flame and flame_t0 is None and stamp / 1e9 >= t0:
                     flame_t0 = now
                 if flame_t0 is not None:
-                    flame_s = now - flame_t0
+                    flame_s = credited_flame_s(flame_t0, now, last_ka)
                     if flame_s >= duration:
                         return result(True)
                     if not flame:
@@ -187,6 +188,7 @@ class CanIgniter(Igniter):
                         if not self._s("Armed") or self.fault:
                             continue
                     if self._command(IGN_IGNITE):
+                        last_ka = time.monotonic()
                         sent += 1
                         self.keepalives_sent += 1
                         self.last_keepalive_ns = time.monotonic_ns()

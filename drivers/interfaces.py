@@ -189,6 +189,17 @@ class Arm(_Closable):
         raise DriverError(f"{type(self).__name__} cannot reset faults")
 
 
+BOARD_KEEPALIVE_TIMEOUT_S = 0.08  # the board shuts the valve after a longer keep-alive gap (docs/protocols/can.md)
+
+
+def credited_flame_s(flame_t0: float, now: float, last_keepalive: float) -> float:
+    """Flame time an `ignite()` may count, from the flame's first confirmation at `flame_t0` to
+    `now` (same clock), but not past the board's keep-alive timeout after the last keep-alive
+    sent: a host that stalls (descheduled, swapping) sends none, the board shuts the valve on its
+    own 80 ms later, and the host's first look after the stall must not count the stall as flame."""
+    return max(0.0, min(now, last_keepalive + BOARD_KEEPALIVE_TIMEOUT_S) - flame_t0)
+
+
 class Igniter(_Closable):
     """Flame igniter board behind the nozzle."""
 
@@ -205,7 +216,8 @@ class Igniter(_Closable):
 
         Blocks until the hold is complete (ok=True), the permit drops or a fault occurs
         (ok=False, reason). The flame is off when this returns, whatever the outcome.
-        `extra['flame_s']` reports how long the flame was confirmed on.
+        `extra['flame_s']` reports how long the flame was confirmed on, never counting past
+        `BOARD_KEEPALIVE_TIMEOUT_S` after the last keep-alive sent (`credited_flame_s`).
         """
 
     @abc.abstractmethod

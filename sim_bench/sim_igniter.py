@@ -23,7 +23,7 @@ import random
 from dataclasses import dataclass
 from typing import Callable
 
-from drivers.interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult
+from drivers.interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult, credited_flame_s
 
 from .sim_clock import SimClock
 
@@ -35,6 +35,7 @@ TRIP_EVENTS = ("keepalive_timeout", "bad_frame", "host_lost")
 @dataclass(frozen=True)
 class IgniterParams:
     keepalive_timeout: float = 0.08  # s without a valid IGNITE -> valve shut
+    timer_period: float = 0.001  # the firmware's timer: a gap is noticed on its first tick after expiry
     light_delay: float = 0.12  # s from the first IGNITE to a detected flame
     trial_time: float = 0.5  # s: no flame by then -> IGNITION_FAILED (latched)
     fuel_per_s: float = 1.0 / 600.0  # tank fraction burnt per second of flame (10 min tank)
@@ -95,7 +96,7 @@ class IgniterBoard:
             self.event = "not_armed"
             return
         if self.valve_open and now - self._last_keepalive > self.p.keepalive_timeout:
-            self._trip(now, "keepalive_timeout")  # too late: the gap expired before this frame
+            self._gap_expired(now)  # too late: the gap expired before this frame
             return
         self._last_keepalive = now
         if not self.valve_open:
@@ -120,7 +121,10 @@ class IgniterBoard:
 
     # ---- time ------------------------------------------------------------------------------
     def tick(self, now: float) -> None:
-        dt = 0.0 if self._last_tick is None else max(0.0, now - self._last_tick)
+        """The firmware's timer. The board runs on its own clock: when the host was stalled and
+        ticks late, the valve shut (and the fuel stopped burning) when the board's own timer
+        noticed the keep-alive gap, not when the host came back."""
+        last_tick = self._last_tick
         self._last_tick = now
         if self.hooks.hardware_fault:
             self.hooks.hardware_fault = False
@@ -128,8 +132,11 @@ class IgniterBoard:
         if not self.valve_open:
             return
         if now - self._last_keepalive > self.p.keepalive_timeout:
-            self._trip(now, "keepalive_timeout")
+            if self.flame_on and last_tick is not None:
+                self._burn(max(0.0, self._gap_deadline(now) - last_tick))
+            self._gap_expired(now)
             return
+        dt = 0.0 if last_tick is None else max(0.0, now - last_tick)
         if not self.flame_on:
             if self._trial_fails or self.hooks.fail_to_light:
                 if now - self._trial_start >= self.p.trial_time:
@@ -138,7 +145,7 @@ class IgniterBoard:
                 self.flame_on = True
                 self._flame_start = now
             return
-        self.fuel = max(0.0, self.fuel - self.p.fuel_per_s * dt)
+        self._burn(dt)
         if self.fuel <= 0.0:
             self._latch(now, "fuel_empty")
         elif self.hooks.flame_out or (
@@ -146,6 +153,16 @@ class IgniterBoard:
         ):
             self.hooks.flame_out, self.hooks.flame_out_after = False, None
             self._latch(now, "flame_out")
+
+    def _burn(self, dt: float) -> None:
+        self.fuel = max(0.0, self.fuel - self.p.fuel_per_s * dt)
+
+    def _gap_deadline(self, now: float) -> float:
+        """When the board's own timer noticed the keep-alive gap (≤ now)."""
+        return min(now, self._last_keepalive + self.p.keepalive_timeout + self.p.timer_period)
+
+    def _gap_expired(self, now: float) -> None:
+        self._trip(self._gap_deadline(now), "keepalive_timeout")
 
     def _shut(self, now: float, event: str | None) -> None:
         """Valve shut; `event` (if any) is reported only when the valve was actually open."""
@@ -237,12 +254,13 @@ class SimIgniterDriver(Igniter):
                 return MoveResult(False, "permit_denied", extra={"flame_s": 0.0})
             flame_t0: float | None = None
             next_ka = self.clock.now()
+            last_ka = next_ka
             while True:
                 now = self.clock.now()
                 if b.flame_on and flame_t0 is None:
                     flame_t0 = now
                 if flame_t0 is not None:
-                    flame_s = now - flame_t0
+                    flame_s = credited_flame_s(flame_t0, now, last_ka)
                     if flame_s >= duration:
                         return MoveResult(True, extra={"flame_s": flame_s})
                     if not b.flame_on:
@@ -257,6 +275,7 @@ class SimIgniterDriver(Igniter):
                     raise DriverTimeout(f"ignite not complete within {timeout:.3f} s")
                 if now >= next_ka:
                     b.ignite(now)
+                    last_ka = now
                     next_ka += self.keepalive_period
                 self._check_link()
                 self._tick()

@@ -91,10 +91,23 @@ def test_board_keepalive_gap_trips_and_disarms():
     assert b.valve_open and b.igniting
 
 
+def test_board_timer_runs_on_its_own_through_a_host_stall():
+    """Ticked only after a 0.15 s stall (the simulated host was descheduled): the valve shut, and
+    the fuel stopped burning, when the board's own timer saw the gap, not when the host resumed."""
+    b, last = _burning_board()
+    fuel = b.fuel
+    b.tick(last + 0.15)
+    assert not b.valve_open and not b.armed and b.event == "keepalive_timeout"
+    assert 0.08 < b.flame_off_at - last <= 0.1
+    burnt_s = (fuel - b.fuel) / b.p.fuel_per_s  # since the helper's last tick at last + 0.019
+    assert 0.06 < burnt_s <= 0.082, burnt_s
+
+
 def test_board_late_keepalive_after_expired_gap_trips_even_without_a_tick():
     b, last = _burning_board()
     b.ignite(last + 0.09)  # arrives after the 80 ms gap expired, before the board's timer saw it
     assert not b.valve_open and not b.armed and b.event == "keepalive_timeout"
+    assert 0.08 < b.flame_off_at - last <= 0.082  # shut by the board's timer, before that frame
 
 
 def test_board_gap_during_trial_trips_too():

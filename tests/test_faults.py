@@ -174,6 +174,17 @@ def test_igniter_trip_from_a_host_stall_gets_one_rearmed_trial(core, tmp_path):
     assert len([m for m in iter_run(log, topics={"/log"}) if "flame trial" in m.data.message]) == 2
 
 
+def test_a_host_stall_at_the_end_of_the_hold_does_not_complete_it(core, tmp_path):
+    """A 0.15 s stall when ~0.1 s of ξ is left: the board burnt 80 ms of it, the host's clock
+    passed the whole ξ. The first trial must end tripped, not flamed; the re-armed trial flames."""
+    result, final, _, log = run_mission(core, tmp_path, [Fault("igniter_stall", 0, params={"at_s": core.task.xi})])
+    t = result.targets[0]
+    msgs = [m.data.message for m in iter_run(log, topics={"/log"})]
+    assert any("flame trial 1 ended: keepalive_timeout" in e for e in msgs), msgs
+    assert t.flamed and t.flame_s >= core.task.xi - 1e-6
+    assert not final["flame_on"]
+
+
 def test_log_accounts_for_retries_corrections_and_injected_misses(core, tmp_path):
     """The log agrees with the summary whatever the faults: each target's last /energy share is
     its reported energy (a failed walk's retry and a slip correction included), the last total

@@ -169,6 +169,29 @@ def test_disarm_and_extinguish_never_raise(rig):
         rig.ign.arm(timeout=1.0)
 
 
+def test_a_host_stall_is_not_counted_as_flame(rig):
+    """A 0.15 s host stall 0.2 s into a 0.3 s hold: the board shuts the valve 80 ms after the last
+    keep-alive, so the flame burnt ~0.28 s. The host's clock says 0.35 s when it resumes; ignite()
+    must not report the hold complete, nor count more flame than the board burnt."""
+    rig.ign.arm(timeout=1.0)
+    lit: list[float] = []
+    stalled: list[bool] = []
+
+    def permit() -> bool:
+        if not lit and rig.ign.state().flame_on:
+            lit.append(rig.now())
+        if lit and not stalled and rig.now() - lit[0] >= 0.2:
+            stalled.append(True)
+            rig.stall(0.15)
+        return True
+
+    r = rig.ign.ignite(0.3, permit, timeout=3.0)
+    assert stalled and not r.ok and r.reason == "keepalive_timeout", r
+    burnt = rig.board.flame_off_at - rig.board._flame_start  # the board's own account
+    assert 0.0 < r.extra["flame_s"] <= burnt + 1e-6, (r.extra["flame_s"], burnt)
+    assert burnt < 0.3
+
+
 @pytest.mark.parametrize("phase", ["burning", "trial"])
 def test_keepalive_gap_ends_ignite_disarmed_and_never_rearms(rig, phase):
     """A host stall longer than the keep-alive timeout (here inside permit()) trips the board: valve
