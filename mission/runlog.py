@@ -1,8 +1,8 @@
 """The run log: one MCAP file per run, written with foxglove-sdk, readable after a crash.
 
-Foxglove schemas where one fits (FrameTransforms, CompressedImage, CameraCalibration, Log),
-the Z1 URDF as a ROS 2 `std_msgs/String` (cdr) on /robot_description so Rerun and Foxglove
-draw the arm, and protobuf messages with their FileDescriptorSet embedded for the rest
+Foxglove schemas where one fits (FrameTransforms, CompressedImage, CameraCalibration, Log,
+SceneUpdate: the arm's simplified meshes, `mission.robot_meshes`), the Z1 URDF as a ROS 2
+`std_msgs/String` (cdr) on /robot_description so Rerun and Foxglove draw the arm, and protobuf messages with their FileDescriptorSet embedded for the rest
 (`mission.runlog_schema`). Topics, schemas, frames and rates: docs/log.md.
 
 Crash safety (SIGKILL, power cut of the process): foxglove-sdk's MCAP writer buffers messages
@@ -28,16 +28,28 @@ import cv2
 import foxglove
 import numpy as np
 from foxglove import Channel, Context, Schema
-from foxglove.channels import CameraCalibrationChannel, CompressedImageChannel, FrameTransformsChannel, LogChannel
+from foxglove.channels import (
+    CameraCalibrationChannel,
+    CompressedImageChannel,
+    FrameTransformsChannel,
+    LogChannel,
+    SceneUpdateChannel,
+)
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from foxglove.messages import (
     CameraCalibration,
+    Color,
     CompressedImage,
+    CubePrimitive,
     FrameTransform,
     FrameTransforms,
     Log,
     LogLevel,
+    ModelPrimitive,
+    Pose,
     Quaternion,
+    SceneEntity,
+    SceneUpdate,
     Timestamp,
     Vector3,
 )
@@ -49,6 +61,7 @@ from capm_field.keystates import TROI, KeyState, Plan
 from capm_field.robot_model import RobotModel
 
 from . import runlog_schema as S
+from .robot_meshes import GLB_MEDIA_TYPE, SPOT_BODY_SIZE, link_meshes
 
 # Topic names (docs/log.md lists them all; tests check the two agree).
 TOPICS = {
@@ -64,6 +77,7 @@ TOPICS = {
     "energy": "/energy",
     "igniter": "/igniter/state",
     "truth_mpoi": "/truth/mpoi",
+    "robot_meshes": "/robot/meshes",
 }
 _PROTO_TOPICS = {
     "plan": "Plan",
@@ -180,6 +194,8 @@ class RunLog:
         self._calib = CameraCalibrationChannel(TOPICS["calibration"], context=ctx)
         self._log = LogChannel(TOPICS["log"], context=ctx)
         self._urdf = Channel(TOPICS["robot_description"], schema=_ROS2_STRING, message_encoding="cdr", context=ctx)
+        self._meshes = SceneUpdateChannel(TOPICS["robot_meshes"], context=ctx)
+        self._link_meshes = link_meshes(robot.urdf_path)  # now (~0.7 s once per process), not in the first log call
         fds = S.descriptor_set_bytes()
         self._proto: dict[str, Channel] = {
             key: Channel(
@@ -261,7 +277,26 @@ class RunLog:
         # Written at the first message's time so the timeline starts with the run, not at 0.
         self._urdf.log(cdr_string(self._urdf_text), log_time=t_ns)
         self._calib.log(CameraCalibration(timestamp=_ts(t_ns), **self._calib_args), log_time=t_ns)
+        self._meshes.log(self._robot_scene(t_ns), log_time=t_ns)
         self._static_written = True
+
+    def _robot_scene(self, t_ns: int) -> SceneUpdate:
+        """/robot/meshes: the arm's simplified link meshes (embedded glTF, following each link's
+        /tf frame) and a box for the Spot body, for viewers without the URDF's meshes."""
+        grey, spot = Color(r=0.78, g=0.8, b=0.82, a=1.0), Color(r=0.95, g=0.75, b=0.1, a=0.6)
+        stamp = _ts(t_ns)
+        entities = []
+        for m in self._link_meshes:
+            q = quaternions(m.origin[:3, :3])[0]
+            pose = Pose(position=Vector3(x=float(m.origin[0, 3]), y=float(m.origin[1, 3]), z=float(m.origin[2, 3])),
+                        orientation=Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+            model = ModelPrimitive(pose=pose, scale=Vector3(x=1.0, y=1.0, z=1.0), color=grey, override_color=True,
+                                   media_type=GLB_MEDIA_TYPE, data=m.glb)
+            entities.append(SceneEntity(timestamp=stamp, frame_id=m.link, id=f"link:{m.link}", frame_locked=True, models=[model]))
+        box = CubePrimitive(pose=Pose(position=Vector3(x=0.0, y=0.0, z=-SPOT_BODY_SIZE[2] / 2), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+                            size=Vector3(x=SPOT_BODY_SIZE[0], y=SPOT_BODY_SIZE[1], z=SPOT_BODY_SIZE[2]), color=spot)
+        entities.append(SceneEntity(timestamp=stamp, frame_id=BODY, id="spot_body", frame_locked=True, cubes=[box]))
+        return SceneUpdate(entities=entities)
 
     def _proto_msg(self, key: str, t_ns: int, **fields):
         m = S.message_class(_PROTO_TOPICS[key])(**fields)

@@ -268,7 +268,7 @@ def test_uncaught_exception_still_finalises(tmp_path, ending):
     proc = subprocess.run([sys.executable, str(script), str(path), "10"], cwd=REPO, capture_output=True, timeout=60)
     assert proc.returncode != 0
     summary, msgs = read_all(path)  # a footer and summary: close() ran at exit
-    assert summary is not None and summary.statistics.message_count == len(msgs["/tf"]) + 3  # + log, urdf, calibration
+    assert summary is not None and summary.statistics.message_count == len(msgs["/tf"]) + 4  # + log, urdf, calibration, meshes
     assert len(msgs["/tf"]) == 20
 
 
@@ -362,8 +362,10 @@ def test_python_warnings_and_tracebacks_go_to_the_log_topic(tmp_path, robot, cam
 
 
 def test_a_damaged_chunk_is_skipped_and_the_rest_is_read(tmp_path, robot, camera):
-    """One flipped byte (a bad sector) in the chunk that holds the /tf Channel record: that chunk's messages are lost, every other chunk's are read (the channel from the
-    summary), the damage is reported, and salvage() copies the rest into a clean file."""
+    """One flipped byte (a bad sector) in the chunk that holds the /tf Channel record: that chunk's
+    messages are lost (it may hold no /tf message: the record goes where the chunk before the first
+    /tf message ends), every other chunk's are read (the channel from the summary), the damage is
+    reported, and salvage() copies the rest into a clean file."""
     path = tmp_path / "run.mcap"
     with RunLog(path, robot, camera, bench=True, chunk_size=4096) as log:
         for i in range(300):
@@ -386,7 +388,7 @@ def test_a_damaged_chunk_is_skipped_and_the_rest_is_read(tmp_path, robot, camera
     got = [m.log_time for m in iter_run(bad, topics={"/tf"}, report=report)]
     assert report.bad_chunks == 1 and report.complete and report.error is None
     assert "1 damaged chunk" in report.damage_note()
-    assert got == [t for t in clean if t not in lost] and 0 < len(lost) < len(clean) / 2
+    assert got == [t for t in clean if t not in lost] and len(got) > len(clean) / 2
     fixed = tmp_path / "fixed.mcap"
     assert salvage(bad, fixed).messages == sum(1 for _ in iter_run(bad))
     summary, msgs = read_all(fixed)
