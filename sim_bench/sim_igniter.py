@@ -96,7 +96,7 @@ class IgniterBoard:
             self.event = "not_armed"
             return
         if self.valve_open and now - self._last_keepalive > self.p.keepalive_timeout:
-            self._gap_expired(now)  # too late: the gap expired before this frame
+            self._gap_expired(now, self._last_tick)  # too late: the gap expired before this frame
             return
         self._last_keepalive = now
         if not self.valve_open:
@@ -132,9 +132,7 @@ class IgniterBoard:
         if not self.valve_open:
             return
         if now - self._last_keepalive > self.p.keepalive_timeout:
-            if self.flame_on and last_tick is not None:
-                self._burn(max(0.0, self._gap_deadline(now) - last_tick))
-            self._gap_expired(now)
+            self._gap_expired(now, last_tick)
             return
         dt = 0.0 if last_tick is None else max(0.0, now - last_tick)
         if not self.flame_on:
@@ -161,8 +159,12 @@ class IgniterBoard:
         """When the board's own timer noticed the keep-alive gap (≤ now)."""
         return min(now, self._last_keepalive + self.p.keepalive_timeout + self.p.timer_period)
 
-    def _gap_expired(self, now: float) -> None:
-        self._trip(self._gap_deadline(now), "keepalive_timeout")
+    def _gap_expired(self, now: float, last_tick: float | None) -> None:
+        """Trip as the board's timer did; a flame burnt fuel from the last tick until then."""
+        t = self._gap_deadline(now)
+        if self.flame_on and last_tick is not None:
+            self._burn(max(0.0, t - last_tick))
+        self._trip(t, "keepalive_timeout")
 
     def _shut(self, now: float, event: str | None) -> None:
         """Valve shut; `event` (if any) is reported only when the valve was actually open."""
