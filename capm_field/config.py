@@ -12,26 +12,57 @@ from __future__ import annotations
 
 import hashlib
 import json
-from typing import Literal
+import typing
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 
-class _Frozen(BaseModel):
+def _takes_bool(annotation: Any) -> bool:
+    """Whether a field annotation admits a bool (bool itself, Any, or a union/container with one)."""
+    if annotation is bool or annotation is Any:
+        return True
+    return any(_takes_bool(a) for a in typing.get_args(annotation))
+
+
+def _has_bool(v: Any) -> bool:
+    return isinstance(v, bool) or (isinstance(v, (list, tuple)) and any(_has_bool(x) for x in v))
+
+
+class StrictNumbers(BaseModel):
+    """Refuses yes/no values where a number is expected: YAML 1.1 reads yes/no/on/off as booleans
+    and pydantic would take them as 1 / 0 (a `seed: yes` or `max_speed: on` would pass)."""
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_yes_no(cls, v: Any, info: ValidationInfo) -> Any:
+        f = cls.model_fields.get(info.field_name or "")
+        if f is not None and _has_bool(v) and not _takes_bool(f.annotation):
+            raise ValueError("a number is needed, not a yes/no value")
+        return v
+
+
+class _Frozen(StrictNumbers):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+# Plausibility bounds: a value beyond them is a typo or a unit error (mm for m, deg for rad), and
+# would otherwise surface mid-run as a numeric failure (a singular matrix, an empty map).
+MAX_OFFSET = 2.0  # m: a mount, hand-eye or tool offset on a Spot + Z1
+_Offset = typing.Annotated[float, Field(ge=-MAX_OFFSET, le=MAX_OFFSET)]
 
 
 class Transform(_Frozen):
     """A rigid transform given as translation (m) and roll-pitch-yaw (rad, fixed-axis XYZ)."""
 
-    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    xyz: tuple[_Offset, _Offset, _Offset] = (0.0, 0.0, 0.0)
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 class BodyConfig(_Frozen):
     """Spot body: an SE(2) pose at a fixed operating height (assumption a.1: holonomic)."""
 
-    operating_height: float = Field(0.8, gt=0.0, description="height of the arm base above ground (m); paper: 0.8")
+    operating_height: float = Field(0.8, gt=0.0, le=2.0, description="height of the arm base above ground (m); paper: 0.8")
     arm_mount: Transform = Field(
         default_factory=Transform,
         description="arm base (Z1 link00) in the body frame; the body frame origin is at operating height",
@@ -39,16 +70,19 @@ class BodyConfig(_Frozen):
     # The body is modelled, as seen from the arm, as a vertical cylinder around the arm base:
     # the arm may not enter it and the camera / flame may not look through it. This is what
     # gives R_o and R_m their inner bounds (the robot cannot see or flame under itself).
-    keepout_radius: float = Field(0.35, ge=0.0, description="radius of the body keep-out cylinder (m)")
+    keepout_radius: float = Field(0.35, ge=0.0, le=MAX_OFFSET, description="radius of the body keep-out cylinder (m)")
     keepout_depth: float | None = Field(
-        None, ge=0.0, description="cylinder extends this far below the arm base (m); None: down to the ground (legs)"
+        None, ge=0.0, le=MAX_OFFSET, description="cylinder extends this far below the arm base (m); None: down to the ground (legs)"
     )
     position_tolerance: float = Field(
-        0.015, ge=0.0, description="expected body placement error (m); planned stops keep this far inside R_o and R_m"
+        0.015, ge=0.0, le=0.5, description="expected body placement error (m); planned stops keep this far inside R_o and R_m"
     )
-    max_speed: float = Field(0.8, gt=0.0, description="body translation speed limit (m/s)")
-    max_yaw_rate: float = Field(1.0, gt=0.0, description="body yaw rate limit (rad/s)")
-    max_accel: float = Field(0.8, gt=0.0, description="body acceleration limit (m/s^2)")
+    max_speed: float = Field(0.8, gt=0.0, le=5.0, description="body translation speed limit (m/s)")
+    max_yaw_rate: float = Field(1.0, gt=0.0, le=10.0, description="body yaw rate limit (rad/s)")
+    max_accel: float = Field(0.8, gt=0.0, le=20.0, description="body acceleration limit (m/s^2)")
+
+
+ARM_JOINTS = 6  # the Z1 (RobotModel refuses a URDF with another count)
 
 
 class ArmConfig(_Frozen):
@@ -58,19 +92,29 @@ class ArmConfig(_Frozen):
     flange_frame: str = Field("link06", description="URDF link carrying camera and nozzle")
     locked_joints: tuple[str, ...] = Field(("jointGripper",), description="joints held at 0 (gripper)")
     stow_joints: tuple[float, ...] = Field((0.0, 0.0, -0.005, 0.0, 0.0, 0.0), description="stowed configuration (rad)")
-    max_joint_speed: float = Field(1.5, gt=0.0, description="joint speed limit used by the bench (rad/s)")
-    min_clearance: float = Field(0.03, ge=0.0, description="arm points must stay this far above ground (m)")
+    max_joint_speed: float = Field(1.5, gt=0.0, le=10.0, description="joint speed limit used by the bench (rad/s)")
+    min_clearance: float = Field(0.03, ge=0.0, le=1.0, description="arm points must stay this far above ground (m)")
+
+    @field_validator("stow_joints")
+    @classmethod
+    def _six(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if len(v) != ARM_JOINTS:
+            raise ValueError(f"the Z1 has {ARM_JOINTS} joints: give {ARM_JOINTS} values (got {len(v)})")
+        return v
+
+
+MAX_PIXELS = 8192  # px per image side (8K; the bench renders every frame at this size)
 
 
 class CameraConfig(_Frozen):
     """Pinhole camera on the end effector. Resolution u_max × v_max is fixed (assumption a.5)."""
 
-    width: int = Field(1280, gt=0, description="u_max (px)")
-    height: int = Field(720, gt=0, description="v_max (px)")
-    fx: float = Field(1000.0, gt=0.0, description="focal length (px)")
-    fy: float = Field(1000.0, gt=0.0, description="focal length (px)")
-    cx: float | None = Field(None, description="principal point (px); default: image centre")
-    cy: float | None = Field(None, description="principal point (px); default: image centre")
+    width: int = Field(1280, gt=0, le=MAX_PIXELS, description="u_max (px)")
+    height: int = Field(720, gt=0, le=MAX_PIXELS, description="v_max (px)")
+    fx: float = Field(1000.0, gt=0.0, le=1e5, description="focal length (px)")
+    fy: float = Field(1000.0, gt=0.0, le=1e5, description="focal length (px)")
+    cx: float | None = Field(None, ge=-1e5, le=1e5, description="principal point (px); default: image centre")
+    cy: float | None = Field(None, ge=-1e5, le=1e5, description="principal point (px); default: image centre")
     # Hand-eye transform: camera optical frame (z forward, x right, y down) in the flange frame.
     # Default: 6 cm above the tool axis, looking along the flange x axis.
     hand_eye: Transform = Field(
@@ -108,22 +152,25 @@ class RobotConfig(_Frozen):
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
+MAX_EPS = 4.0  # m²: EPMC distances beyond 2 m are beyond the arm and the lance
+
+
 class TaskConfig(_Frozen):
     """Task constraints and energy model (paper §IV-A, §IV-D, §IV-E)."""
 
     delta: float = Field(0.15, gt=0.0, le=1.0, description="δ: min projected-TROI area / image area (NSV resolution)")
-    eps_min: float = Field(0.05, ge=0.0, description="ε_min: min ‖X_e − X̄_w‖² (m²) for EPMC")
-    eps_max: float = Field(0.10, gt=0.0, description="ε_max: max ‖X_e − X̄_w‖² (m²) for EPMC")
+    eps_min: float = Field(0.05, ge=0.0, le=MAX_EPS, description="ε_min: min ‖X_e − X̄_w‖² (m²) for EPMC")
+    eps_max: float = Field(0.10, gt=0.0, le=MAX_EPS, description="ε_max: max ‖X_e − X̄_w‖² (m²) for EPMC")
     xi: float = Field(3.0, gt=0.0, le=60.0, description="ξ: flame hold time for MTC (s); a minute is beyond any weed")
-    gamma: float = Field(2.0, ge=0.0, description="γ: energy per unit distance d")
-    beta: float = Field(0.0, ge=0.0, description="β: weight of the orientation term in d (paper: not given)")
+    gamma: float = Field(2.0, ge=0.0, le=1e3, description="γ: energy per unit distance d")
+    beta: float = Field(0.0, ge=0.0, le=1e3, description="β: weight of the orientation term in d (paper: not given)")
     distance_form: Literal["squared", "euclidean"] = Field(
         "euclidean", description="‖ΔX‖² as printed, or plain ‖ΔX‖ (Table I comes out of the plain form)"
     )
     sigma_reading: Literal["variance", "std"] = Field(
         "variance", description="Σ_w = scale·r_w·I read as a covariance (σ = √(scale·r_w)) or as σ = scale·r_w"
     )
-    sigma_scale: float = Field(1.0, gt=0.0, description="scale on r_w in Σ_w")
+    sigma_scale: float = Field(1.0, gt=0.0, le=10.0, description="scale on r_w in Σ_w")
 
     @model_validator(mode="after")
     def _eps_order(self) -> "TaskConfig":

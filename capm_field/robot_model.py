@@ -95,6 +95,11 @@ class RobotModel:
         self.data = self.model.createData()
         self.lower = self.model.lowerPositionLimit.copy()
         self.upper = self.model.upperPositionLimit.copy()
+        stow = np.asarray(self.cfg.arm.stow_joints, float)
+        bad = [i + 1 for i in range(len(stow)) if not self.lower[i] - 1e-3 <= stow[i] <= self.upper[i] + 1e-3]
+        if bad:  # the gateway would refuse to go there (TARGET_OUT_OF_RANGE): every stow would fail
+            raise UserError(f"robot.arm.stow_joints: joint(s) {bad} outside the limits of {urdf.name} "
+                            f"({', '.join(f'J{i}: [{self.lower[i - 1]:.4f}, {self.upper[i - 1]:.4f}]' for i in bad)} rad)")
         self.joint_names = [self.model.names[i] for i in range(1, self.model.njoints)]
         self.T_body_base = transform_matrix(self.cfg.body.arm_mount)
         self.T_body_base[2, 3] += 0.0  # body origin is already at operating height

@@ -7,6 +7,7 @@ incompatible change).
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -20,6 +21,7 @@ import cbor2
 
 VERSION = 1
 MAX_PAYLOAD = 4096  # bytes; anything larger is malformed (bounds decoding work on hostile input)
+GOAL_EXTENT_M = 10_000.0  # |x|, |y| of a Move goal (field-frame metres, as mission files): beyond it, a unit error
 
 _ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
@@ -73,10 +75,11 @@ class Keys:
 # ---- codec -------------------------------------------------------------------------------------
 # Field specs: name -> (type, required). Types: str, int, float, bool, id, pose, map, str?, ...
 _POSE = {"x": ("float", True), "y": ("float", True), "yaw": ("float", True)}
+_GOAL = {"x": ("coord", True), "y": ("coord", True), "yaw": ("float", True)}
 _CMD = {"id": ("int", True), "status": ("status", True), "reason": ("str?", False)}
 SCHEMAS: dict[str, dict[str, tuple[str, bool]]] = {
     # requests
-    "move": {"client": ("id", True), "lease": ("str", True), "goal": ("pose", True), "timeout_ns": ("int", True)},
+    "move": {"client": ("id", True), "lease": ("str", True), "goal": ("goal", True), "timeout_ns": ("int", True)},
     "stop": {"client": ("id", True)},
     "power": {"client": ("id", True), "lease": ("str", True), "on": ("bool", True)},
     "lease_acquire": {"client": ("id", True), "lease": ("str?", False)},
@@ -106,15 +109,18 @@ def _check(value: Any, typ: str, name: str) -> None:
         "id": lambda v: isinstance(v, str) and bool(_ID_RE.match(v)),
         "int": lambda v: isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**64,
         "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
+        "coord": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= GOAL_EXTENT_M,
         "bool": lambda v: isinstance(v, bool),
         "status": lambda v: v in MOVE_STATUSES,
         "pose": lambda v: isinstance(v, dict),
+        "goal": lambda v: isinstance(v, dict),
         "cmd": lambda v: isinstance(v, dict),
     }[typ](value)
     if not ok:
-        raise ProtocolError("malformed", f"field {name!r} must be {typ}, got {value!r:.60}")
-    if typ == "pose":
-        _check_map(value, _POSE, name + ".")
+        need = f"a number within ±{GOAL_EXTENT_M:.0f} m" if typ == "coord" else typ
+        raise ProtocolError("malformed", f"field {name!r} must be {need}, got {value!r:.60}")
+    if typ in ("pose", "goal"):
+        _check_map(value, _POSE if typ == "pose" else _GOAL, name + ".")
     elif typ == "cmd":
         _check_map(value, _CMD, name + ".")
 
@@ -142,9 +148,12 @@ def decode(kind: str, raw: bytes | None) -> dict[str, Any]:
     if len(raw) > MAX_PAYLOAD:
         raise ProtocolError("malformed", f"payload of {len(raw)} bytes exceeds {MAX_PAYLOAD}")
     try:
-        msg = cbor2.loads(raw)
+        buf = io.BytesIO(raw)
+        msg = cbor2.CBORDecoder(buf).decode()
     except Exception as e:  # noqa: BLE001 - any decoder failure is a malformed payload
         raise ProtocolError("malformed", f"not CBOR ({type(e).__name__})") from None
+    if buf.tell() != len(raw):  # one map per message: bytes after it are a framing error (two messages, junk)
+        raise ProtocolError("malformed", f"{len(raw) - buf.tell()} bytes after the CBOR map")
     if not isinstance(msg, dict):
         raise ProtocolError("malformed", "top level must be a CBOR map")
     v = msg.get("v")
@@ -231,6 +240,7 @@ def load_config_file(path: str | os.PathLike):  # -> zenoh.Config
     p = Path(path).expanduser()
     if not p.is_file():
         raise FileNotFoundError(f"zenoh config file not found: {p}")
+    _check_config_text(p)
     cfg = zenoh.Config.from_file(str(p))
     for key in FILE_KEYS:
         value = json.loads(cfg.get_json(key))
@@ -254,6 +264,46 @@ def load_config_file(path: str | os.PathLike):  # -> zenoh.Config
     return cfg
 
 
+MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_DEPTH = 64  # a zenoh config nests < 10 deep; zenoh's JSON5 parser recurses (~20 000 levels crash it)
+
+
+def _check_config_text(p: Path) -> None:
+    """Refuse what zenoh's own parser does not survive: it runs in this process and overflows its
+    stack (SIGSEGV, no exception) on brackets nested ~20 000 deep. Size first, then depth."""
+    size = p.stat().st_size
+    if size > MAX_CONFIG_BYTES:
+        raise ValueError(f"{p}: {size} bytes is too large for a zenoh config file (limit {MAX_CONFIG_BYTES})")
+    depth = _max_nesting(p.read_bytes())
+    if depth > MAX_CONFIG_DEPTH:
+        raise ValueError(f"{p}: brackets nested {depth} deep: not a zenoh config file (limit {MAX_CONFIG_DEPTH})")
+
+
+def _max_nesting(text: bytes) -> int:
+    """Deepest nesting of {} and [] outside JSON5 strings and comments (YAML flow style alike)."""
+    depth = deepest = i = 0
+    n = len(text)
+    while i < n:
+        c = text[i]
+        if c in b"\"'":  # a string: skip to its closing quote (backslash escapes)
+            i += 1
+            while i < n and text[i] != c:
+                i += 2 if text[i] == 0x5C else 1
+        elif text.startswith(b"//", i) or c == 0x23:  # // or # comment: to the end of the line
+            while i < n and text[i] != 0x0A:
+                i += 1
+        elif text.startswith(b"/*", i):
+            end = text.find(b"*/", i + 2)
+            i = n if end < 0 else end + 1
+        elif c in b"{[":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in b"}]":
+            depth -= 1
+        i += 1
+    return deepest
+
+
 def _check_pem(cfg_path: Path, key: str, f: Path) -> None:
     """A certificate or key file named by the config must be PEM of that kind (a text file with
     anything else in it only fails at the first TLS handshake, on the robot)."""
@@ -269,6 +319,10 @@ def _check_pem(cfg_path: Path, key: str, f: Path) -> None:
             m = None
         if not m:
             raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} is not a PEM certificate ({what})")
+        try:  # PEM armour around something that is not a certificate fails every handshake
+            ssl.create_default_context(cadata=m.group(0).decode("ascii"))
+        except (ssl.SSLError, ValueError) as e:
+            raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} holds no valid certificate ({what}: {e})") from None
     elif not re.search(rb"-----BEGIN [A-Z ]*PRIVATE KEY-----", text):
         raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} is not a PEM private key ({what})")
 

@@ -122,8 +122,10 @@ class CanArm(Arm):
     # ---- helpers -----------------------------------------------------------------------------
     @property
     def fault(self) -> str | None:
-        code = self._status["FaultCode"]
-        if self._status["Mode"] != 4 and not code:
+        code, mode = self._status["FaultCode"], self._status["Mode"]
+        if mode not in ARM_MODES:  # a mode this host does not know: never drive an arm in it
+            return f"unknown_mode_{mode}"
+        if mode != 4 and not code:
             return None
         return ARM_FAULTS.get(code) or f"fault_{code}"  # mode FAULT always reports a fault
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from capm_field.robot_model import RobotModel
 
 from .can.config import CanArmConfig, CanBusConfig, CanIgniterConfig
-from .interfaces import DriverSet
+from .interfaces import DriverError, DriverSet
 
 
 def open_hardware_drivers(mission, robot: RobotModel, mission_dir: str | Path | None = None) -> DriverSet:
@@ -30,7 +30,12 @@ def open_hardware_drivers(mission, robot: RobotModel, mission_dir: str | Path | 
         igniter.extinguish()  # whatever state the board was left in: flame off first
         arm = CanArm(CanArmConfig(bus=bus), robot)
         opened.append(arm)
-        body = ZenohBody(ZenohBodyConfig.from_spec(hw.zenoh, mission_dir))
+        try:
+            body = ZenohBody(ZenohBodyConfig.from_spec(hw.zenoh, mission_dir))
+        except DriverError:
+            raise
+        except Exception as e:  # zenoh refusing its config or endpoints: a driver that cannot open
+            raise DriverError(f"body link: cannot open the zenoh session: {' '.join(str(e).split())[:300]}") from e
         opened.append(body)
         camera = OpenCVCamera(hw.camera.source, mission.robot.camera)
         opened.append(camera)

@@ -21,6 +21,8 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
+import re
 import signal
 import sys
 import threading
@@ -29,7 +31,7 @@ from typing import Any
 
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2, wrap_angle
-from drivers.body_protocol import LinkConfig, link_security
+from drivers.body_protocol import LinkConfig, check_id, link_security
 from drivers.body_server import BackendState, BodyBackend, BodyServer, MoveStatus, ServerConfig, check_link_security
 from drivers.interfaces import EStopActive
 
@@ -219,8 +221,27 @@ class SpotBackend(BodyBackend):
                         self._spot_cmd = None
 
 
+class SpotUnavailable(Exception):
+    """Spot could not be taken (no credentials, unreachable, login refused, lease held): one line."""
+
+    def __init__(self, msg: str, exit_code: int = 1) -> None:
+        super().__init__(msg)
+        self.exit_code = exit_code
+
+
 def connect_spot(hostname: str, config: BodyConfig, field_in_odom: SE2, estop_timeout_s: float):
-    """Log in, take the lease and an E-stop endpoint, power on and stand. Returns (backend, cleanup)."""
+    """Log in, take the lease and an E-stop endpoint, power on and stand. Returns (backend, cleanup);
+    SpotUnavailable when that fails."""
+    if not (os.environ.get("BOSDYN_CLIENT_USERNAME") and os.environ.get("BOSDYN_CLIENT_PASSWORD")) and not sys.stdin.isatty():
+        # the SDK would prompt for them, then fail with a traceback
+        raise SpotUnavailable("BOSDYN_CLIENT_USERNAME and BOSDYN_CLIENT_PASSWORD must be set (no terminal to ask on)", 2)
+    try:
+        return _connect_spot(hostname, config, field_in_odom, estop_timeout_s)
+    except Exception as e:  # noqa: BLE001 - bosdyn's errors: unreachable, refused login, lease held, E-stopped
+        raise SpotUnavailable(f"cannot take Spot at {hostname}: {type(e).__name__}: {' '.join(str(e).split())[:300]}") from e
+
+
+def _connect_spot(hostname: str, config: BodyConfig, field_in_odom: SE2, estop_timeout_s: float):
     import bosdyn.client
     import bosdyn.client.util
     from bosdyn.client.estop import EstopClient, EstopEndpoint, EstopKeepAlive
@@ -258,7 +279,27 @@ def _se2(text: str) -> SE2:
         x, y, yaw = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected x,y,yaw (m, m, rad), got {text!r}") from None
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise argparse.ArgumentTypeError(f"x,y,yaw must be finite, got {text!r}")
     return SE2(x, y, yaw)
+
+
+def _check_args(a: argparse.Namespace) -> str | None:
+    """Why the options cannot serve a body (one line), checked before the SDK touches the robot."""
+    try:
+        check_id("robot_id", a.robot_id)
+    except ValueError as e:
+        return f"--robot-id: {e}"
+    for opt, v, hi in (("--estop-timeout", a.estop_timeout, 60.0), ("--spot-estop-timeout", a.spot_estop_timeout, 600.0),
+                       ("--lease-ttl", a.lease_ttl, 600.0), ("--lease-ms", a.lease_ms, 60_000)):
+        if not 0 < v <= hi:  # NaN too
+            return f"{opt} must be in (0, {hi:g}], got {v}"
+    try:
+        BodyConfig(max_speed=a.max_speed, max_yaw_rate=a.max_yaw_rate)
+    except ValueError as e:  # pydantic's ValidationError: its first error, one line
+        err = e.errors()[0] if hasattr(e, "errors") else {"loc": (), "msg": str(e)}
+        return f"--{'-'.join(str(x) for x in err['loc']).replace('_', '-')}: {err['msg']} (got {err.get('input')!r})"
+    return None
 
 
 def main(argv: list[str]) -> int:
@@ -280,6 +321,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--max-speed", type=float, default=BodyConfig().max_speed)
     ap.add_argument("--max-yaw-rate", type=float, default=BodyConfig().max_yaw_rate)
     a = ap.parse_args(argv)
+    bad = _check_args(a)
+    if bad:
+        print(f"capm-field spot-bridge: error: {bad}", file=sys.stderr)
+        return 2
     try:
         import bosdyn.client  # noqa: F401
     except ImportError:
@@ -289,11 +334,16 @@ def main(argv: list[str]) -> int:
     link = LinkConfig(listen=tuple(a.listen), connect=tuple(a.connect), lease_ms=a.lease_ms, config_file=a.zenoh_config)
     try:  # before touching the robot: a missing certificate or an unsecured endpoint stops here
         check_link_security(link_security(link.zenoh_config()), a.insecure)
-    except (OSError, ValueError) as e:
-        print(f"capm-field spot-bridge: error: {e}", file=sys.stderr)
+    except Exception as e:  # noqa: BLE001 - OSError, ValueError, zenoh's ZError (endpoints, config)
+        msg = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", " ".join(str(e).split()))  # zenoh names its Rust source
+        print(f"capm-field spot-bridge: error: {msg[:400]}", file=sys.stderr)
         return 2
     cfg = BodyConfig(max_speed=a.max_speed, max_yaw_rate=a.max_yaw_rate)
-    backend, cleanup = connect_spot(a.hostname, cfg, a.field_in_odom, a.spot_estop_timeout)
+    try:
+        backend, cleanup = connect_spot(a.hostname, cfg, a.field_in_odom, a.spot_estop_timeout)
+    except SpotUnavailable as e:
+        print(f"capm-field spot-bridge: error: {e}", file=sys.stderr)
+        return e.exit_code
     server = None
     try:
         server = BodyServer(backend, ServerConfig(robot_id=a.robot_id, link=link, estop_timeout_s=a.estop_timeout,

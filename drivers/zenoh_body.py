@@ -24,6 +24,7 @@ from typing import Callable
 
 from capm_field.geometry import SE2
 from drivers.body_protocol import (
+    GOAL_EXTENT_M,
     Keys,
     LinkConfig,
     ProtocolError,
@@ -49,6 +50,11 @@ from drivers.interfaces import (
 
 log = logging.getLogger(__name__)
 _TERMINAL = ("succeeded", "failed", "stopped", "estop", "timeout")
+# Ack fields each request needs back (optional in the Ack schema, required for that request)
+_ACK_FIELDS = {"move": ("cmd_id",), "lease_acquire": ("lease", "ttl_ns"), "checkin": ("timeout_ns", "estop")}
+_MAX_NS = 2**64 - 1  # a CBOR uint
+SEQ_RESTART_GAP = 1000  # State.seq this far below the last one taken: the robot side restarted (10 s of states)
+SEQ_RESTART_QUIET_NS = 500_000_000  # or no State taken for this long (a restart takes longer)
 
 
 @dataclass(frozen=True)
@@ -104,6 +110,7 @@ class ZenohBody(Body):
         self._seq = 0
         self.stats: collections.Counter[str] = collections.Counter()
         self._listeners: list[Callable[[BodyState], None]] = []
+        self._last_seq: int | None = None  # State.seq of the last state taken: older ones are dropped
         self._stop_bg = threading.Event()
         self._bg: threading.Thread | None = None
         zcfg = cfg.link.zenoh_config()
@@ -132,14 +139,16 @@ class ZenohBody(Body):
 
     # ---- Body --------------------------------------------------------------------------------
     def move_to(self, goal: SE2, timeout: float, on_state: StateCallback | None = None) -> MoveResult:
-        if not all(math.isfinite(v) for v in goal.as_tuple()):
-            raise ValueError(f"goal must be finite, got {goal}")
+        if not all(math.isfinite(v) for v in goal.as_tuple()) or max(abs(goal.x), abs(goal.y)) > GOAL_EXTENT_M:
+            raise ValueError(f"goal must be finite and within ±{GOAL_EXTENT_M:.0f} m, got {goal}")
+        if not timeout > 0:  # NaN too
+            raise ValueError(f"timeout must be > 0 s, got {timeout}")
         t0 = time.monotonic()
         deadline = t0 + timeout
         self._ensure_lease(deadline)
         odo0 = self._state["odometry_m"] if self._state else 0.0
         msg = {"client": self.client_id, "lease": self._lease or "", "goal": pose_map(*goal.as_tuple()),
-               "timeout_ns": max(1, int(timeout * 1e9))}
+               "timeout_ns": max(1, int(min(timeout * 1e9, _MAX_NS)))}
         try:
             ack = self._query(self.keys.cmd_move, "move", msg, deadline)
         except LeaseRefused:
@@ -291,10 +300,11 @@ class ZenohBody(Body):
         replies = self._session.get(key, payload=encode(kind, msg), timeout=t)
         for reply in replies:  # first reply only: one robot side per key
             if reply.ok is not None:
-                return decode("ack", reply.ok.payload.to_bytes())
+                return self._ack(key, kind, reply.ok.payload.to_bytes())
             try:
                 e = decode("error", reply.err.payload.to_bytes())
             except ProtocolError as pe:
+                self.stats["bad_reply"] += 1
                 raise DriverError(f"robot side sent an unreadable error for {key}: {pe}") from None
             tag, detail = e["error"], e["detail"]
             self.stats[f"refused_{tag}"] += 1
@@ -308,6 +318,19 @@ class ZenohBody(Body):
         if err:
             raise LinkLost(f"link to {self.keys.prefix} lost: {err}")
         raise DriverTimeout(f"no answer to {key} within {t:.3f} s")
+
+    def _ack(self, key: str, kind: str, raw: bytes) -> dict:
+        """A success reply, checked: an Ack map with ok = true and the fields `kind` needs back; a
+        reply that is not (another robot side's version, a foreign queryable) is a DriverError."""
+        try:
+            ack = decode("ack", raw)
+            missing = [f for f in _ACK_FIELDS.get(kind, ()) if f not in ack]
+            if ack["ok"] is not True or missing:
+                raise ProtocolError("malformed", f"ok={ack['ok']}, missing {missing}" if missing else "ok=false in a success reply")
+        except ProtocolError as e:
+            self.stats["bad_reply"] += 1
+            raise DriverError(f"robot side sent an unusable reply for {key}: {e}") from None
+        return ack
 
     def _stop_nowait(self) -> None:
         try:
@@ -329,7 +352,8 @@ class ZenohBody(Body):
     def _checkin(self, deadline: float) -> None:
         ack = self._query(self.keys.estop_checkin, "checkin", {"client": self.client_id, "seq": self._next_seq()}, deadline)
         # Spot's EstopKeepAlive checks in at a third of the timeout; a quarter leaves one more try.
-        self._checkin_period_s = max(0.02, ack.get("timeout_ns", 1_000_000_000) * 1e-9 / 4)
+        # (at least once a second: a robot side announcing an absurd timeout must not stop our check-ins)
+        self._checkin_period_s = min(1.0, max(0.02, ack["timeout_ns"] * 1e-9 / 4))
 
     def _background(self) -> None:
         next_checkin = time.monotonic() + self._checkin_period_s
@@ -348,6 +372,9 @@ class ZenohBody(Body):
                         self._lease = None
             except DriverError:
                 self.stats["checkin_failed"] += 1
+            except Exception:  # noqa: BLE001 - the keep-alive thread must outlive any one bad round
+                self.stats["checkin_failed"] += 1
+                log.exception("E-stop check-in failed")
             next_checkin += self._checkin_period_s
             if next_checkin < time.monotonic():
                 next_checkin = time.monotonic()
@@ -383,6 +410,15 @@ class ZenohBody(Body):
             return
         now = time.monotonic_ns()
         with self._cond:
+            if self._last_seq is not None and m["seq"] <= self._last_seq and not (
+                    m["seq"] < self._last_seq - SEQ_RESTART_GAP or now - self._state_rx_ns > SEQ_RESTART_QUIET_NS):
+                # seq increases by one per State: an equal or slightly lower one is a replayed or
+                # reordered sample (or a second publisher on the key) and would move the pose back
+                # in time. A far lower one, or any after a quiet spell, is a restarted robot side
+                # (its seq starts again at 0): taken, else its states would be dropped for good
+                self.stats["stale_state"] += 1
+                return
+            self._last_seq = m["seq"]
             self._state, self._state_rx_ns = m, now
             c = m.get("cmd")
             if c and c["status"] in _TERMINAL and c["id"] not in self._results:
@@ -391,7 +427,12 @@ class ZenohBody(Body):
         if self._listeners:
             st = self.state()
             for fn in self._listeners:
-                fn(st)
+                try:
+                    fn(st)
+                except Exception:  # noqa: BLE001 - one bad listener must not cost the others their states
+                    self.stats["listener_failed"] += 1
+                    if self.stats["listener_failed"] == 1:
+                        log.exception("state listener %r failed (logged once)", fn)
 
     def _on_feedback(self, sample) -> None:
         try:

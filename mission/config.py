@@ -8,10 +8,12 @@ columns x,y,r[,id] or GeoJSON Points with a `radius`/`r` property, field-frame m
 
 from __future__ import annotations
 
+import collections
 import csv
 import io
 import json
 import math
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -19,7 +21,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from capm_field.config import RobotConfig, TaskConfig
+from capm_field.config import RobotConfig, StrictNumbers, TaskConfig
 from capm_field.errors import UserError
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
@@ -27,6 +29,12 @@ from capm_field.keystates import TROI
 PLANNER_NAMES = ("a", "b", "c", "cstar", "field")
 FIELD_EXTENT = 10_000.0  # m: |x|, |y| of any pose or TROI (field-frame metres; lon/lat or mm are not)
 MAX_MISSION_BYTES = 4 * 2**20
+MAX_PRESCAN_BYTES = 16 * 2**20
+MAX_TROIS = 5000  # ~14 h of flaming at ~10 s a weed; ordering them alone takes ~9 s
+MAX_TIMEOUT_S = 3600.0
+# ids name log lines, summary keys and (escaped) Rerun paths: any printable text of 1–64 characters
+# (a prescan tool's "W 12" or "plot A/3" too), not starting or ending with a space
+TROI_ID_RE = re.compile(r"^(?=.{1,64}\Z)[^\x00-\x20\x7f-\x9f](?:[^\x00-\x1f\x7f-\x9f]*[^\x00-\x20\x7f-\x9f])?\Z")
 LEG_MARGIN = 0.8  # a leg of the visit may take at most this share of the body's move timeout
 
 
@@ -38,6 +46,7 @@ def _not_bool(v: Any) -> Any:
 
 
 Real = Annotated[float, BeforeValidator(_not_bool)]
+Timeout = Annotated[float, BeforeValidator(_not_bool), Field(gt=0.0, le=MAX_TIMEOUT_S)]
 Coord = Annotated[float, BeforeValidator(_not_bool), Field(ge=-FIELD_EXTENT, le=FIELD_EXTENT)]
 
 
@@ -49,8 +58,13 @@ class MissionError(UserError):
         super().__init__("\n".join(problems) if len(problems) > 1 else problems[0])
 
 
-class _Strict(BaseModel):
+class _Tagged(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class _Strict(StrictNumbers, _Tagged):
+    """Strict models whose numbers refuse yes/no values (`_Tagged`: models of a tagged union,
+    whose tag field cannot take a before-validator; their numbers say so one by one)."""
 
 
 class Pose(_Strict):
@@ -62,15 +76,26 @@ class Pose(_Strict):
         return SE2(self.x, self.y, self.yaw)
 
 
+def _troi_id(v: str | None) -> str | None:
+    if v is not None and v != "" and not TROI_ID_RE.match(v):  # "" (or none): a generated id
+        raise ValueError(f"a TROI id is 1-64 printable characters, no control characters, no space at either end (got {v[:80]!r})")
+    return v or None
+
+
 class TroiSpec(_Strict):
     id: str | None = None
     x: Coord
     y: Coord
     r: Real = Field(gt=0.0, le=0.5, description="TROI radius r_w (m)")
 
+    @field_validator("id")
+    @classmethod
+    def _id(cls, v: str | None) -> str | None:
+        return _troi_id(v)
+
 
 class FieldSpec(_Strict):
-    trois: list[TroiSpec] = Field(default_factory=list)
+    trois: list[TroiSpec] = Field(default_factory=list, max_length=MAX_TROIS)
     prescan: str | None = Field(None, description="CSV or GeoJSON file of TROI centres and radii")
 
     @model_validator(mode="after")
@@ -89,12 +114,15 @@ class FaultSpec(_Strict):
     params: dict[str, Any] = Field(default_factory=dict)
 
 
-class BenchDrivers(_Strict):
+class BenchDrivers(_Tagged):
     kind: Literal["bench"]
-    seed: int = Field(0, ge=0)
+    seed: Annotated[int, BeforeValidator(_not_bool)] = Field(0, ge=0)
     transport: Literal["inprocess", "wire"] = Field("inprocess", description="in-process sim, or real adapters over loopback")
     faults: list[FaultSpec] | str = Field(default_factory=list, description="list, or 'random:SEED'")
     mpoi_in_troi: bool = Field(True, description="true MPOIs are drawn from N(X_w, Σ_w) restricted to the TROI")
+
+
+ENDPOINT_RE = re.compile(r"^[a-z][a-z0-9-]*/[^\s#?]+(\?[^\s#]*)?(#\S*)?$")  # zenoh: <protocol>/<address>[?meta][#config]
 
 
 class ZenohSpec(_Strict):
@@ -103,8 +131,23 @@ class ZenohSpec(_Strict):
     listen: list[str] = Field(default_factory=list)
     config_file: str | None = Field(None, description="zenoh JSON5 config (mutual TLS, user/password), relative to this "
                                     "file; connect/listen/lease above still apply (docs/security.md)")
-    estop_timeout_s: float = Field(1.0, gt=0.0)
-    lease_s: float = Field(1.0, gt=0.0)
+    estop_timeout_s: float = Field(1.0, gt=0.0, le=60.0)
+    lease_s: float = Field(1.0, gt=0.0, le=60.0)
+
+    @field_validator("robot_id")
+    @classmethod
+    def _robot_id(cls, v: str) -> str:
+        from drivers.body_protocol import check_id  # the protocol's own rule (key expressions)
+
+        return check_id("robot_id", v)
+
+    @field_validator("connect", "listen")
+    @classmethod
+    def _endpoints(cls, v: list[str]) -> list[str]:
+        bad = [e for e in v if not ENDPOINT_RE.match(e)]
+        if bad:
+            raise ValueError(f"a zenoh endpoint is <protocol>/<address>, e.g. tls/192.168.80.3:7447 (got {bad[0]!r})")
+        return v
 
 
 class CanSpec(_Strict):
@@ -112,12 +155,21 @@ class CanSpec(_Strict):
     channel: str = "can0"
     bitrate: int = Field(1_000_000, gt=0, le=1_000_000, description="classic CAN: ≤ 1 Mbit/s")
 
+    @field_validator("interface")
+    @classmethod
+    def _interface(cls, v: str) -> str:
+        import can
+
+        if v not in can.VALID_INTERFACES:
+            raise ValueError(f"unknown python-can interface {v!r} (socketcan on the robot)")
+        return v
+
 
 class CameraSpec(_Strict):
     source: str | int = 0
 
 
-class HardwareDrivers(_Strict):
+class HardwareDrivers(_Tagged):
     kind: Literal["hardware"]
     zenoh: ZenohSpec = Field(default_factory=ZenohSpec)
     can: CanSpec = Field(default_factory=CanSpec)
@@ -139,6 +191,13 @@ class OutputSpec(_Strict):
     dir: str = "runs/latest"
     images: bool = True
 
+    @field_validator("dir")
+    @classmethod
+    def _dir(cls, v: str) -> str:
+        if not v.strip() or "\0" in v:  # "" would write into the current directory
+            raise ValueError("needs a directory name")
+        return v
+
 
 class Mission(_Strict):
     name: str = "mission"
@@ -151,7 +210,8 @@ class Mission(_Strict):
     drivers: BenchDrivers | HardwareDrivers = Field(discriminator="kind")
     igniter: IgniterSpec = Field(default_factory=IgniterSpec)
     output: OutputSpec = Field(default_factory=OutputSpec)
-    timeouts: dict[str, float] = Field(default_factory=lambda: {"body": 60.0, "arm": 20.0, "camera": 5.0})
+    timeouts: dict[Literal["body", "arm", "camera"], Timeout] = Field(default_factory=lambda: {"body": 60.0, "arm": 20.0, "camera": 5.0},
+                                                                   description=f"s, each in (0, {MAX_TIMEOUT_S:.0f}]")
 
     @field_validator("planner")
     @classmethod
@@ -180,7 +240,8 @@ def _line_map(text: str, duplicates: list[str] | None = None) -> dict[tuple, int
         if isinstance(node, yaml.MappingNode):
             seen: dict = {}
             for k, v in node.value:
-                key = k.value
+                # a complex key (`? [a, b]`) is unhashable: name it by its line, pydantic refuses it
+                key = k.value if isinstance(k, yaml.ScalarNode) else f"<key on line {k.start_mark.line + 1}>"
                 if duplicates is not None and key in seen:
                     where = ".".join(str(x) for x in path + (key,))
                     duplicates.append(f"{k.start_mark.line + 1}: {where}: key given twice (first on line {seen[key]})")
@@ -275,10 +336,12 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
         for err in e.errors():
             loc = tuple(err["loc"])
             line = _line_for(lines, loc)
-            key = ".".join(str(x) for x in loc if x not in ("bench", "hardware")) or "(top level)"
+            key = ".".join(str(x) for x in loc if x not in ("bench", "hardware", "[key]")) or "(top level)"
             msg = err["msg"].removeprefix("Value error, ")
             got = err.get("input")
             got_s = f" (got {got!r})" if err["type"] not in ("missing",) and not isinstance(got, (dict, list)) else ""
+            if got_s and f"{got!r}"[:40] in msg:  # the message names it already
+                got_s = ""
             problems.append(f"{path}:{line or '?'}: {key}: {msg}{got_s}")
         raise MissionError(problems) from e
     if problems:
@@ -337,7 +400,7 @@ def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
     if not trois:
         raise MissionError([f"{path}:{_line_for(lines, ('field',)) or '?'}: field: no TROIs (list field.trois or give field.prescan)"])
     ids = [t.id for t in trois]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
+    dup = sorted(i for i, n in collections.Counter(ids).items() if n > 1)
     if dup:
         raise MissionError([f"{path}:{_line_for(lines, ('field',)) or '?'}: field: duplicate TROI ids {dup}"])
     return trois
@@ -353,6 +416,9 @@ def load_prescan(src: Path) -> list[TROI]:
     if suffix not in (".csv", ".geojson", ".json"):
         raise MissionError([f"{src}: prescan must be .csv or .geojson"])
     try:
+        if src.stat().st_size > MAX_PRESCAN_BYTES:  # MAX_TROIS rows are well under 1 MiB
+            raise MissionError([f"{src}: {src.stat().st_size / 2**20:.0f} MiB is too large for a prescan file "
+                                f"(limit {MAX_PRESCAN_BYTES // 2**20} MiB, {MAX_TROIS} TROIs)"])
         text = src.read_text(encoding="utf-8-sig")  # a spreadsheet's CSV may start with a BOM
     except (OSError, UnicodeDecodeError) as e:
         raise MissionError([f"{src}: cannot read the prescan file: {e}"]) from e
@@ -361,6 +427,7 @@ def load_prescan(src: Path) -> list[TROI]:
             rows = list(csv.DictReader(io.StringIO(text, newline="")))
         except csv.Error as e:
             raise MissionError([f"{src}: not a readable CSV file: {e}"]) from e
+        _check_count(src, len(rows))
         for i, row in enumerate(rows, start=2):
             try:
                 x, y, r = float(row["x"]), float(row["y"]), float(row["r"])
@@ -375,9 +442,12 @@ def load_prescan(src: Path) -> list[TROI]:
             raise MissionError([f"{src}:{e.lineno}: invalid JSON: {e.msg}"]) from e
         except RecursionError as e:
             raise MissionError([f"{src}: the JSON is nested too deeply to be a prescan file"]) from e
+        except ValueError as e:  # an integer of over 4300 digits
+            raise MissionError([f"{src}: invalid JSON: {e}"]) from e
         feats = doc.get("features") if isinstance(doc, dict) else None
         if not isinstance(feats, list):
             raise MissionError([f"{src}: expected a GeoJSON FeatureCollection"])
+        _check_count(src, len(feats))
         for i, f in enumerate(feats):
             geom = f.get("geometry") if isinstance(f, dict) else None
             props = f.get("properties") if isinstance(f, dict) else None
@@ -399,6 +469,11 @@ def load_prescan(src: Path) -> list[TROI]:
     return out
 
 
+def _check_count(src: Path, n: int) -> None:
+    if n > MAX_TROIS:
+        raise MissionError([f"{src}: {n} TROIs, more than one mission takes ({MAX_TROIS}): split the field"])
+
+
 def _not_a_file(p: Path, what: str) -> str:
     """Why `p` (not `is_file()`) cannot be read as a `what` file."""
     return f"is a directory, not a {what} file" if p.is_dir() else f"{what} file not found" if not p.exists() else "not a regular file"
@@ -413,4 +488,8 @@ def _checked_troi(src: Path, line: int | None, x: float, y: float, r: float, tid
             or max(abs(x), abs(y)) > FIELD_EXTENT:
         problems.append(f"{src}:{line or '?'}: {where + ': ' if where else ''}radius must be in (0, 0.5] m and "
                         f"coordinates finite field-frame metres within ±{FIELD_EXTENT:.0f} (got x={x}, y={y}, r={r})")
+    try:
+        _troi_id(tid)
+    except ValueError as e:
+        problems.append(f"{src}:{line or '?'}: {where + ': ' if where else ''}{e}")
     return TROI(x, y, r, tid)

@@ -14,6 +14,7 @@ anything that is not flaming.
 from __future__ import annotations
 
 import time
+import traceback
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
@@ -702,6 +703,10 @@ class Executive:
             aborted = f"{type(e).__name__}: {e}"
         except DriverError as e:
             aborted = f"{type(e).__name__}: {e}"
+        except Exception as e:  # noqa: BLE001 - a software fault mid-mission (a planner on a degenerate
+            # robot/task): the robot is made safe and the run recorded like any abort, traceback in the log
+            aborted = f"internal error: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
+            self._event("error", "".join(traceback.format_exception(e))[-8000:])
         finally:
             self._safe()
         if aborted:

@@ -31,9 +31,9 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import McapReader
 
-from capm_field.errors import UserError
+from capm_field.errors import UserError, check_output
 
-from .runlog import TOPICS
+from .runlog import _PROTO_TOPICS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
@@ -59,6 +59,13 @@ COLORS = {
     "target_energy": (245, 130, 48),
 }
 _CUSTOM = {TOPICS[k] for k in ("plan", "key_state", "detection", "regions", "energy", "igniter", "truth_mpoi", "tf")}
+# the schema each topic drawn here must carry: another one (a foreign or hand-made file) is skipped
+_SCHEMAS = {TOPICS[k]: f"capm.log.{v}" for k, v in _PROTO_TOPICS.items()} | {TOPICS["tf"]: "foxglove.FrameTransforms"}
+
+
+def _part(target_id: str) -> str:
+    """A target id as one Rerun entity-path part (ids may hold '/', spaces, dots: escaped)."""
+    return rr.escape_entity_path_part(target_id or "_")
 
 
 @dataclass
@@ -75,6 +82,13 @@ class RunData:
 def load_run(path: Path) -> RunData:
     data = RunData()
     for m in iter_run(path, report=data.report):
+        want = _SCHEMAS.get(m.topic)
+        if want and m.schema != want:
+            data.report.skip(m.topic, f"schema {m.schema or '(none)'!r}, expected {want}")
+            continue
+        if want and isinstance(m.data, (bytes, str)):  # an encoding with no decoder here (json, ...)
+            data.report.skip(m.topic, f"{want} in an encoding other than protobuf")
+            continue
         data.first_ns = m.log_time if data.first_ns is None else min(data.first_ns, m.log_time)
         data.last_ns = m.log_time if data.last_ns is None else max(data.last_ns, m.log_time)
         if m.topic == TOPICS["tf"]:
@@ -128,8 +142,8 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
                 trois.setdefault(m.target_id or m.troi.id, (m.troi.x, m.troi.y, m.troi.r))
     lg.at(t0)
     for tid, (x, y, r) in trois.items():
-        lg.log(f"/review/troi/{tid}", rr.LineStrips3D([circle(x, y, r)], colors=[COLORS["troi"]], radii=[0.004], labels=[f"TROI {tid}"]))
-        lg.log(f"/review/troi/{tid}/centre", rr.Points3D([[x, y, 0.01]], colors=[COLORS["troi"]], radii=[0.01]))
+        lg.log(f"/review/troi/{_part(tid)}", rr.LineStrips3D([circle(x, y, r)], colors=[COLORS["troi"]], radii=[0.004], labels=[f"TROI {tid}"]))
+        lg.log(f"/review/troi/{_part(tid)}/centre", rr.Points3D([[x, y, 0.01]], colors=[COLORS["troi"]], radii=[0.01]))
 
     if data.body_path:
         lg.log("/review/body_path", rr.LineStrips3D([np.asarray(data.body_path)], colors=[COLORS["body_path"]], radii=[0.005]), static=True)
@@ -138,18 +152,18 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
         lg.at(t)
         tid = m.target_id
         ro = [circle(m.troi.x, m.troi.y, r, z=0.006) for a in m.ro for r in (a.r_inner, a.r_outer) if r > 0]
-        lg.log(f"/review/regions/{tid}/R_o", rr.LineStrips3D(ro or [np.zeros((0, 3))], colors=[COLORS["ro"]], radii=[0.003]))
+        lg.log(f"/review/regions/{_part(tid)}/R_o", rr.LineStrips3D(ro or [np.zeros((0, 3))], colors=[COLORS["ro"]], radii=[0.003]))
         # R_m around the MPOI once known, before that around X_w (the planners' assumption).
         cx, cy = (m.mpoi.x, m.mpoi.y) if m.HasField("mpoi") else (m.troi.x, m.troi.y)
         rm = [circle(cx, cy, r, z=0.008) for a in m.rm for r in (a.r_inner, a.r_outer) if r > 0]
-        lg.log(f"/review/regions/{tid}/R_m", rr.LineStrips3D(rm or [np.zeros((0, 3))], colors=[COLORS["rm"]], radii=[0.003]))
+        lg.log(f"/review/regions/{_part(tid)}/R_m", rr.LineStrips3D(rm or [np.zeros((0, 3))], colors=[COLORS["rm"]], radii=[0.003]))
 
     for t, m in msgs[TOPICS["plan"]]:
         lg.at(t)
         pts = [(m.start.x, m.start.y)] + [(k.body.x, k.body.y) for k in m.key_states] + [(m.end.x, m.end.y)]
         labels = ["start"] + [k.label for k in m.key_states] + ["end"]
         xyz = np.c_[np.asarray(pts), np.full(len(pts), 0.02)]
-        path = f"/review/plan/{m.target_id}"
+        path = f"/review/plan/{_part(m.target_id)}"
         lg.log(path, rr.LineStrips3D([xyz], colors=[COLORS["plan"]], radii=[0.004], labels=[f"{m.planner} p={m.p_upper:.2f} E={m.expected_cost:.1f}"]))
         lg.log(f"{path}/states", rr.Points3D(xyz, colors=[COLORS["plan"]] * len(xyz), radii=[0.02] * len(xyz), labels=labels))
 
@@ -160,7 +174,7 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
         ks = executed[m.target_id]
         xyz = np.array([(k.body.x, k.body.y, 0.03) for k in ks])
         labels = [k.label + (f" ({k.note})" if k.note else "") for k in ks]
-        path = f"/review/key_states/{m.target_id}"
+        path = f"/review/key_states/{_part(m.target_id)}"
         lg.log(path, rr.Points3D(xyz, colors=[COLORS["key_state"]] * len(ks), radii=[0.03] * len(ks), labels=labels))
         lg.log(f"{path}/path", rr.LineStrips3D([xyz], colors=[COLORS["key_state"]], radii=[0.006]))
         if m.arm and m.HasField("target"):
@@ -170,16 +184,16 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
         lg.at(t)
         tid = m.target_id
         if m.HasField("mpoi_field"):
-            lg.log(f"/review/detection/{tid}", rr.Points3D([[m.mpoi_field.x, m.mpoi_field.y, 0.01]], colors=[COLORS["detection"]], radii=[0.015], labels=[f"MPOI {m.confidence:.2f}"]))
+            lg.log(f"/review/detection/{_part(tid)}", rr.Points3D([[m.mpoi_field.x, m.mpoi_field.y, 0.01]], colors=[COLORS["detection"]], radii=[0.015], labels=[f"MPOI {m.confidence:.2f}"]))
         if m.HasField("pixel"):
             lg.log("/camera/image/detection", rr.Points2D([[m.pixel.x, m.pixel.y]], colors=[COLORS["detection"]], radii=[8.0], labels=[f"{tid} {m.confidence:.2f}"]), frame=IMAGE_PLANE)
         else:
             lg.log("/camera/image/detection", rr.Clear(recursive=False), frame=IMAGE_PLANE)
-            lg.log(f"/review/detection/{tid}/miss", rr.TextLog(f"{tid}: no MPOI ({m.reason or 'no reason'})", level="WARN"))
+            lg.log(f"/review/detection/{_part(tid)}/miss", rr.TextLog(f"{tid}: no MPOI ({m.reason or 'no reason'})", level="WARN"))
 
     for t, m in msgs[TOPICS["truth_mpoi"]]:
         lg.at(t)
-        lg.log(f"/review/truth/{m.target_id}", rr.Points3D([[m.mpoi.x, m.mpoi.y, 0.012]], colors=[COLORS["truth"]], radii=[0.012], labels=["truth"]))
+        lg.log(f"/review/truth/{_part(m.target_id)}", rr.Points3D([[m.mpoi.x, m.mpoi.y, 0.012]], colors=[COLORS["truth"]], radii=[0.012], labels=["truth"]))
 
     _series(lg, msgs)
 
@@ -310,6 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     mcap = check_mcap(args.run)
+    check_output(str(args.rrd) if args.rrd else None, "--rrd")  # before the read, not after it
     native = not args.rrd and not args.web
     if native and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise UserError("no display for the native viewer (DISPLAY/WAYLAND_DISPLAY unset): use --rrd FILE or --web")
@@ -318,6 +333,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {data.report.error}", file=sys.stderr)
     if data.report.bad_chunks:
         print(f"capm-field review: note: {mcap} is damaged: {data.report.damage_note()}", file=sys.stderr)
+    if data.report.undecodable:
+        print(f"capm-field review: note: {data.report.undecodable} message(s) skipped, not readable as this run log's "
+              f"(first: {data.report.undecodable_note})", file=sys.stderr)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
         print(f"wrote {args.rrd} ({data.report.messages} messages)")

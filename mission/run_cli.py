@@ -51,6 +51,9 @@ def validate_main(argv: list[str]) -> int:
     a = _validate_parser().parse_args(argv)
     mission, trois = load_mission(a.mission)
     check_hardware_files(mission, a.mission)
+    from capm_field.robot_model import RobotModel
+
+    RobotModel(mission.robot)  # the URDF, its flange frame and joint count (ms; the maps are left to run)
     out = Path(mission.output.dir)
     if out.exists() and not out.is_dir():
         raise MissionError([f"{a.mission}: output.dir: {out} exists and is not a directory"])
@@ -151,14 +154,20 @@ def main(argv: list[str]) -> int:
     from .executive import Executive
     from .runlog import RunLog, RunLogHandler
 
-    robot = RobotModel(mission.robot)
     quiet = a.quiet
     say = (lambda m: None) if quiet else (lambda m: print(f"reachability maps: {m}", file=sys.stderr))
-    maps = get_maps(robot, mission.task, ReachabilityConfig(), progress=say)
-    core = PlanningCore(robot, maps, mission.task)
-    for t in trois:
-        core.effective_radius(t.r)  # every TROI must be plannable before anything starts
-    planner = make_planner(mission.planner, core, seed=mission.drivers.seed if mission.drivers.kind == "bench" else 0)
+    try:
+        robot = RobotModel(mission.robot)
+        maps = get_maps(robot, mission.task, ReachabilityConfig(), progress=say)
+        core = PlanningCore(robot, maps, mission.task)
+        for t in trois:
+            core.effective_radius(t.r)  # every TROI must be plannable before anything starts
+        planner = make_planner(mission.planner, core, seed=mission.drivers.seed if mission.drivers.kind == "bench" else 0)
+    except UserError:
+        raise
+    except Exception as e:  # noqa: BLE001 - a robot/task the schema allows but the geometry cannot use
+        raise UserError(f"{a.mission}: robot/task: no plan can be made with these values ({type(e).__name__}: "
+                        f"{' '.join(str(e).split())[:200]}) (nothing was started)") from e
     from drivers.interfaces import DriverError
 
     made = not out.exists()

@@ -44,6 +44,8 @@ class ReadReport:
     bad_chunks: int = 0  # chunks skipped because their CRC or compression was damaged
     orphans: int = 0  # messages skipped because their channel was defined in a skipped chunk
     damage: str | None = None  # the first skipped chunk's problem
+    undecodable: int = 0  # messages skipped because their payload or schema did not decode
+    undecodable_note: str | None = None  # the first of them: topic and problem
 
     def damage_note(self) -> str | None:
         """One line on what was skipped in the middle of the file, or None."""
@@ -51,6 +53,11 @@ class ReadReport:
             return None
         return (f"{self.bad_chunks} damaged chunk(s) skipped ({self.damage}); "
                 f"{self.orphans} later message(s) on channels defined there skipped too")
+
+    def skip(self, topic: str, why: str) -> None:
+        """Count a message that is not read (undecodable, or not what its topic should carry)."""
+        self.undecodable += 1
+        self.undecodable_note = self.undecodable_note or f"{topic}: {why}"
 
 
 def decode_cdr_string(data: bytes) -> str:
@@ -146,15 +153,26 @@ def iter_run(path: str | Path, topics: set[str] | None = None, report: ReadRepor
     p = check_mcap(path)
     report = report if report is not None else ReadReport()
     factory = DecoderFactory()
-    decoders: dict[int, Callable[[bytes], Any] | None] = {}
+    decoders: dict[int, Callable[[bytes], Any] | None | Exception] = {}
     for schema, channel, msg in _iter_raw(p, topics, report):
-        if channel.message_encoding == "cdr" and schema is not None and schema.name == "std_msgs/msg/String":
-            data: Any = decode_cdr_string(msg.data)
-        else:
-            if channel.id not in decoders:
-                decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
-            dec = decoders[channel.id]
-            data = dec(msg.data) if dec is not None else msg.data
+        # a damaged or foreign message (bad payload, schema that is no descriptor) is skipped and
+        # counted, like a damaged chunk: the rest of the run is still worth reading
+        try:
+            if channel.message_encoding == "cdr" and schema is not None and schema.name == "std_msgs/msg/String":
+                data: Any = decode_cdr_string(msg.data)
+            else:
+                if channel.id not in decoders:
+                    try:
+                        decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+                    except Exception as e:  # noqa: BLE001 - remembered: one failure per channel
+                        decoders[channel.id] = e
+                dec = decoders[channel.id]
+                if isinstance(dec, Exception):
+                    raise dec
+                data = dec(msg.data) if dec is not None else msg.data
+        except Exception as e:  # noqa: BLE001 - protobuf DecodeError, struct/Index/Unicode errors
+            report.skip(channel.topic, f"{type(e).__name__}: {' '.join(str(e).split())[:120]}")
+            continue
         report.messages += 1
         yield RunMessage(channel.topic, msg.log_time, schema.name if schema else "", data)
 

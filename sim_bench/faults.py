@@ -13,6 +13,7 @@ own pipeline (an IK failure of its solvers, a detector miss).
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -45,6 +46,40 @@ FAULT_KINDS: dict[str, str] = {
 }
 
 
+# Parameters each kind reads (`at_s`: every kind): name → (type, lower, upper). Checked when the
+# schedule is parsed: a typo or a NaN would otherwise be ignored, or injected (a NaN slip) mid-run.
+_SECONDS = (float, 0.0, 3600.0)
+_OFFSET = (float, -5.0, 5.0)
+FAULT_PARAMS: dict[str, dict[str, tuple]] = {
+    "estop": {"release_s": _SECONDS},
+    "estop_flame": {"release_s": _SECONDS},
+    "motion_failure": {"after_s": _SECONDS},
+    "slip": {"dx": _OFFSET, "dy": _OFFSET},
+    "slip_flame": {"dx": _OFFSET, "dy": _OFFSET},
+    "arm_fault": {"code": (str, None, None)},
+    "ignition_failure": {"persist": (bool, None, None)},
+    "flame_out": {"after_s": _SECONDS},
+    "fuel_low": {"level": (float, 0.0, 1.0)},
+    "igniter_stall": {"stall_s": (float, 0.0, 60.0)},
+}
+MAX_SEED = 2**63 - 1
+
+
+def _check_params(f: "Fault") -> None:
+    allowed = {"at_s": _SECONDS, **FAULT_PARAMS.get(f.kind, {})}
+    for name, v in f.params.items():
+        if name not in allowed:
+            raise UserError(f"fault {f.kind}: unknown parameter {name!r}; it takes {', '.join(sorted(allowed))}")
+        typ, lo, hi = allowed[name]
+        if typ is float:
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi
+            need = f"a number in [{lo:g}, {hi:g}]"
+        else:
+            ok, need = isinstance(v, typ), f"a {typ.__name__}"
+        if not ok:
+            raise UserError(f"fault {f.kind}: parameter {name} must be {need} (got {v!r:.40})")
+
+
 @dataclass
 class Fault:
     kind: str
@@ -65,6 +100,8 @@ def parse_faults(spec: Any, n_targets: int) -> list[Fault]:
     if isinstance(spec, str):
         m = re.fullmatch(r"random:(\d+)", spec.strip())
         if m:
+            if len(m.group(1)) > 19 or int(m.group(1)) > MAX_SEED:
+                raise UserError(f"--faults: random seed must be ≤ {MAX_SEED} (got {len(m.group(1))} digits)")
             return random_faults(int(m.group(1)), n_targets)
         out = []
         for part in spec.split(","):
@@ -87,6 +124,7 @@ def parse_faults(spec: Any, n_targets: int) -> list[Fault]:
             raise UserError(f"fault phase {f.phase!r} unknown; choose from walk, observe, reposition, flame, stow")
         if not 0 <= f.target < max(n_targets, 1):
             raise UserError(f"fault {f.kind}: target index {f.target} outside 0..{n_targets - 1}")
+        _check_params(f)
     return faults
 
 

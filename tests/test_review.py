@@ -13,6 +13,8 @@ from rerun.chunk import RrdReader
 from capm_field import cli
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig
+from capm_field.keystates import TROI
+from mission.review import main as review_main
 from mission.runlog import RunLog
 from mission.runlog_synth import synthetic_mission
 
@@ -105,3 +107,17 @@ def test_a_run_directory_stands_for_its_log(tmp_path, capsys):
     empty.mkdir()
     assert cli.main(["review", str(empty), "--rrd", str(tmp_path / "x.rrd")]) == 2
     assert "is a directory without a run.mcap" in capsys.readouterr().err
+
+
+def test_target_ids_with_slashes_and_spaces_are_one_entity_each(tmp_path, robot):
+    """TROI ids are free text (a prescan tool's "plot A/3"): review escapes them, so each stays
+    one entity under /review/troi instead of splitting into a path."""
+    path = tmp_path / "run.mcap"
+    with RunLog(path, robot, PinholeCamera.from_config(CameraConfig()), bench=True) as log:
+        for k, tid in enumerate(("plot A/3", "W.1")):
+            log.regions(10**9 + k, tid, TROI(1.0 + k, 0.0, 0.2, tid), [(0.3, 0.6)], [], None)
+    out = tmp_path / "out.rrd"
+    assert review_main([str(path), "--rrd", str(out)]) == 0
+    ents = rrd_contents(out)
+    troi = sorted(e for e in ents if e.startswith("/review/troi/") and "LineStrips3D:strips" in ents[e])
+    assert troi == ["/review/troi/W.1", "/review/troi/plot\\ A\\/3"], troi  # escaped: one part each

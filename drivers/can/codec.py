@@ -10,8 +10,8 @@ module does (docs/protocols/can.md is the reference for a gateway author):
   Including the id stops a payload that is valid for one frame being accepted as another.
 
 Receivers (`Receiver`) reject — and count, never act on — unknown ids, 29-bit (extended)
-frames, remote and error frames, wrong DLC, bad checksum, repeated counters and out-of-sequence
-(stale / reordered) counters. The counter and CRC catch faults of an honest sender (lost,
+frames, remote and error frames, CAN FD frames, wrong DLC, bad checksum, a signal outside its
+DBC range, repeated counters and out-of-sequence (stale / reordered) counters. The counter and CRC catch faults of an honest sender (lost,
 repeated, stale, reordered, corrupted frames); they are no protection against a deliberate
 sender on the bus (a recorded pair of consecutive frames replays through the resync rule).
 `SetPairer` joins the A and B halves of a joint set (targets, states).
@@ -135,11 +135,13 @@ REJECT_REASONS = (
     "unknown_id",  # 11-bit id not in the DBC
     "extended_id",  # any 29-bit frame (the protocol is CAN 2.0A only)
     "remote_or_error",
+    "fd",  # a CAN FD frame (the protocol is classic CAN only)
     "dlc",
     "checksum",
     "counter_repeated",
     "counter_sequence",
     "decode",
+    "range",  # a signal outside its DBC [min|max] (e.g. Command 200, Fuel 600 %): never acted on
     "pair",  # counted by the set consumer (`SetPairer`): a B half without its A (lone, late, interleaved)
 )
 
@@ -200,6 +202,9 @@ class Receiver:
         self._consume = {self.db.get_message_by_name(n).frame_id for n in consume}
         self._known = {m.frame_id for m in self.db.messages}
         self._checks = {fid: _CounterCheck(max_counter_jump) for fid in self._consume}
+        # per consumed id: (signal, min, max, tolerance of half a step for the float scaling)
+        self._ranges = {fid: [(g.name, g.minimum, g.maximum, abs(g.scale) / 2) for g in self.db.get_message_by_frame_id(fid).signals
+                              if g.minimum is not None and g.maximum is not None] for fid in self._consume}
         self.stats = RxStats()
         self.last_reject: str | None = None
 
@@ -218,6 +223,9 @@ class Receiver:
             return None
         if msg.is_remote_frame:
             self.reject("remote_or_error" if fid in self._known else "unknown_id")
+            return None
+        if getattr(msg, "is_fd", False):
+            self.reject("fd")
             return None
         if fid not in self._known:
             self.reject("unknown_id")
@@ -238,6 +246,9 @@ class Receiver:
             sig = m.decode(data, decode_choices=False, scaling=True)
         except Exception:  # noqa: BLE001 - any decode problem is a rejected frame
             self.reject("decode")
+            return None
+        if any(not lo - tol <= sig[name] <= hi + tol for name, lo, hi, tol in self._ranges[fid]):
+            self.reject("range")
             return None
         if protected:
             reason, lost = self._checks[fid].check(int(sig["Counter"]))
