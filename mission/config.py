@@ -106,12 +106,20 @@ class FieldSpec(_Strict):
 
 
 class FaultSpec(_Strict):
-    """One scheduled fault (bench): `kind` at target index `target` (or time `at_s`)."""
+    """One scheduled fault (bench): `kind` at target index `target` (visit order), in `phase`
+    (default: the kind's own), `at_s` seconds into that phase (the same as `params.at_s`)."""
 
     kind: str
     target: int | None = Field(None, ge=0)
-    at_s: float | None = Field(None, ge=0.0)
+    phase: Literal["walk", "observe", "reposition", "flame", "stow"] | None = None
+    at_s: float | None = Field(None, ge=0.0, le=3600.0)
     params: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _one_at_s(self) -> "FaultSpec":
+        if self.at_s is not None and "at_s" in self.params and self.params["at_s"] != self.at_s:
+            raise ValueError(f"at_s given twice ({self.at_s} and params.at_s {self.params['at_s']})")
+        return self
 
 
 class BenchDrivers(_Tagged):

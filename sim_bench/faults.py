@@ -116,7 +116,10 @@ def parse_faults(spec: Any, n_targets: int) -> list[Fault]:
             faults.append(f)
             continue
         d = f if isinstance(f, dict) else f.model_dump()
-        faults.append(Fault(d["kind"], int(d.get("target") or 0), d.get("phase"), dict(d.get("params") or {})))
+        params = dict(d.get("params") or {})
+        if d.get("at_s") is not None:  # a mission's `at_s` is the params' (it was once read nowhere)
+            params.setdefault("at_s", d["at_s"])
+        faults.append(Fault(d["kind"], int(d.get("target") or 0), d.get("phase"), params))
     for f in faults:
         if f.kind not in FAULT_KINDS:
             raise UserError(f"fault kind {f.kind!r} unknown; choose from {', '.join(FAULT_KINDS)}")

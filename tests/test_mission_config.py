@@ -283,3 +283,21 @@ def test_validate_warns_of_an_unprotected_robot_link_and_checks_output_and_bitra
     (tmp_path / "afile").write_text("x")
     r = subprocess.run(CLI + ["validate", str(_write(tmp_path, GOOD + "output: {dir: afile}\n"))], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 2 and "output.dir" in r.stderr and "not a directory" in r.stderr
+
+
+def test_mission_fault_list_takes_phase_and_at_s(tmp_path):
+    """A fault list entry's `phase` and `at_s` reach the injector (`at_s` was accepted and then
+    read nowhere; `phase` was refused as an unknown key)."""
+    from sim_bench.faults import parse_faults
+
+    p = tmp_path / "m.yaml"
+    p.write_text(GOOD.replace("seed: 3", "seed: 3, faults: [{kind: slip, target: 0, phase: flame, at_s: 1.5, params: {dx: 0.1}}]"))
+    mission, trois = load_mission(p)
+    (f,) = parse_faults(mission.drivers.faults, len(trois))
+    assert (f.kind, f.target, f.phase, f.params) == ("slip", 0, "flame", {"dx": 0.1, "at_s": 1.5})
+    p.write_text(GOOD.replace("seed: 3", "seed: 3, faults: [{kind: slip, phase: sleep}]"))
+    with pytest.raises(MissionError, match="phase"):
+        load_mission(p)
+    p.write_text(GOOD.replace("seed: 3", "seed: 3, faults: [{kind: slip, at_s: 1, params: {at_s: 2}}]"))
+    with pytest.raises(MissionError, match="at_s given twice"):
+        load_mission(p)
