@@ -293,6 +293,8 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= 250)) / gray.size  # clipped to white
     if mean < 12 or sat > 0.6 or std < 1.5 or mean > 245:
         return bad
+    if _coherence(mid) < NOISE_COHERENCE:
+        return bad  # noise, not a scene (a faulty sensor or a corrupted stream): max-pooled, it looks green
 
     inside = np.ones(gray.shape, bool)
     if roi is not None:
@@ -301,6 +303,21 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     if roi is not None and n_in < 16:
         return bad
     return _Window(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside))
+
+
+NOISE_COHERENCE = 0.65  # measured: bench, photo-like and other-renderer frames ≥ 0.87; RGB noise ≤ 0.56
+
+
+def _coherence(bgr: np.ndarray) -> float:
+    """Spread of the grey level after 2 × 2 averaging over its spread before: ≈ 0.5 for white
+    noise (no spatial structure), ≈ 1 for a scene (structure larger than a pixel)."""
+    g = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    h, w = (g.shape[0] // 2) * 2, (g.shape[1] // 2) * 2
+    if h < 4 or w < 4:
+        return 1.0
+    s0 = float(cv2.meanStdDev(g[:h, :w])[1][0, 0])
+    s2 = float(cv2.meanStdDev(cv2.resize(g[:h, :w], (w // 2, h // 2), interpolation=cv2.INTER_AREA))[1][0, 0])
+    return s2 / s0 if s0 > 0 else 1.0
 
 
 def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False,

@@ -342,6 +342,27 @@ def test_bad_inputs_never_raise(img) -> None:
     assert det.reason == "bad_image" and det.pixel is None
 
 
+@pytest.mark.parametrize("shape", [(720, 640), (480, 640), (300, 400), (1080, 1920)])
+def test_a_frame_of_noise_is_a_bad_image_not_a_plant(shape) -> None:
+    """Uniform RGB noise (a faulty sensor, a corrupted stream): max-pooled greenness made it a
+    plant with confidence 0.8 on 18 of 20 frames of 720 × 640; a grey-level coherence test says
+    bad_image (white noise ≈ 0.5, scenes ≥ 0.87). A real scene with heavy sensor noise still works."""
+    rng = np.random.default_rng(sum(shape))
+    assert detect_centre((rng.random((*shape, 3)) * 255).astype(np.uint8)).reason == "bad_image"
+
+
+def test_heavy_sensor_noise_on_a_scene_is_still_read() -> None:
+    """Gaussian noise σ = 20 grey levels on a bench rosette view: still a scene, still the weed."""
+    case = make_case(11, 0, CAM, 0.1, bare=False)  # index 0: a rosette
+    img = case.scene.render(case.T, CAM)
+    noisy = np.clip(img + np.random.default_rng(1).normal(0, 20, img.shape), 0, 255).astype(np.uint8)
+    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
+    clean, det = detect_centre(img, roi), detect_centre(noisy, roi)
+    assert clean.reason is None and det.reason is None, det
+    g = ground_centre(CAM, case.T, det)
+    assert np.linalg.norm(g - case.scene.weeds[0].centre) < 0.015
+
+
 def test_expected_bad_input_is_not_logged_as_a_failure(caplog) -> None:
     """Bad input is answered by the input checks (no traceback in the log); only a failure inside
     the detector goes to the log, with its traceback, before "bad_image" is answered."""
