@@ -92,6 +92,8 @@ class Roi:
         a, b = float(semi_axes[0]), float(semi_axes[1])
         if not (a > 0 and b > 0):
             raise ValueError("semi-axes must be positive")
+        if not all(math.isfinite(v) for v in (a, b, float(angle_deg), *map(float, centre))):
+            raise ValueError("ellipse must be finite")
         t = math.radians(angle_deg)
         R = np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])
         M = R @ np.diag([1 / a**2, 1 / b**2]) @ R.T
