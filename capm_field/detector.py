@@ -221,6 +221,8 @@ def _as_roi(roi: RoiLike) -> Roi | None:
         return roi
     if isinstance(roi, np.ndarray) and roi.shape == (3, 3):
         return Roi.from_conic(roi)
+    if isinstance(roi, (list, tuple)) and len(roi) == 3 and all(isinstance(r, (list, tuple, np.ndarray)) and len(r) == 3 for r in roi):
+        return Roi.from_conic(np.asarray(roi, float))  # a conic as nested lists
     (cu, cv_), (w, h), ang = roi
     return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
 

@@ -390,9 +390,17 @@ def test_expected_bad_input_is_not_logged_as_a_failure(caplog) -> None:
 
 
 def test_bad_roi_never_raises() -> None:
-    img = np.random.default_rng(0).integers(0, 255, (100, 100, 3), dtype=np.uint8)
-    for roi in (np.eye(3), "x", ((10, 10), (-5, 3), 0), np.full((3, 3), np.nan)):
-        assert detect_centre(img, roi).reason == "bad_image"
+    img = cv2.imread(str(FIX / "rosette_vga.jpg"))  # a plant: only the roi can make it bad_image
+    assert detect_centre(img).reason is None
+    for roi in (np.eye(3), "x", ((10, 10), (-5, 3), 0), np.full((3, 3), np.nan), ((np.inf, 1), (1, 1), 0),
+                ((300, 200), (50, 50), float("nan")), [[1, 0], [0, 1]]):
+        assert detect_centre(img, roi).reason == "bad_image", roi
+
+
+def test_conic_roi_as_nested_lists() -> None:
+    img = cv2.imread(str(FIX / "rosette_vga.jpg"))
+    C = Roi.from_ellipse((376, 195), (150, 120), 10).conic
+    assert detect_centre(img, C.tolist()) == detect_centre(img, C)
 
 
 def test_degenerate_or_huge_roi_is_answered_without_a_traceback(caplog) -> None:
