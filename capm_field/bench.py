@@ -193,7 +193,7 @@ def rmse_vs_paper(res: dict, spec: BenchSpec) -> float:
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="capm-field bench", description=__doc__.split("\n")[0])
     ap.add_argument("--trials", type=int, default=1000, help="TROIs per path length (paper: N = 1000)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=cli_args.seed, default=0)
     ap.add_argument("--planners", default="a,b,c", help="comma-separated subset of a,b,c,cstar")
     ap.add_argument("--lengths", default=",".join(str(x) for x in PATH_LENGTHS), help="path lengths (m)")
     ap.add_argument("--span", choices=("midpoint", "random"), default="midpoint", help="where X_w lies on the path")

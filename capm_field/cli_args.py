@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Iterable
 
 from .errors import UserError
@@ -28,3 +29,17 @@ def positive_floats(text: str, flag: str) -> tuple[float, ...]:
     if any(v <= 0 for v in out):
         raise UserError(f"{flag} must be positive, got {text}")
     return out
+
+
+MAX_SEED = 2**63 - 1
+
+
+def seed(text: str) -> int:
+    """argparse type of a random seed: an integer in [0, 2⁶³) (numpy refuses negative seeds)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 0 <= n <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2**63 - 1] (got {text[:30]})")
+    return n

@@ -185,7 +185,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--troi", type=int, default=20, help="TROIs per field (K)")
     ap.add_argument("--densities", default=",".join(f"{d:g}" for d in DENSITIES), help="weeds per m², comma-separated")
     ap.add_argument("--planners", default=",".join(PLANNERS), help=f"subset of {','.join(PLANNERS)}")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=cli_args.seed, default=0)
     ap.add_argument("--prior", choices=("gauss", "in-troi"), default="gauss", help="MPOI ~ N(X_w, Σ_w), or restricted to the TROI disc")
     ap.add_argument("--single-trials", type=int, default=200, help="TROIs of the single-TROI protocol row (0: skip)")
     ap.add_argument("--gamma", type=float, default=table_bench.DEFAULT_GAMMA)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
 from capm_field.errors import UserError, check_output, write_output
 from capm_field.planners import PlanningCore, make_planner
@@ -45,7 +46,7 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="capm-field bench-mission", description=__doc__.split("\n")[0])
     ap.add_argument("mission")
     ap.add_argument("--trials", type=int, default=2000, help="MPOI draws per target")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=cli_seed, default=0)
     ap.add_argument("--summary", help="a run's summary.json to compare against")
     ap.add_argument("--json", metavar="FILE")
     a = ap.parse_args(argv)

@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from capm_field.cli_args import seed as cli_seed
 from capm_field.errors import UserError
 
 from .config import Mission, MissionError, load_mission
@@ -76,18 +77,11 @@ def _link_warnings(mission: Mission) -> list[str]:
     return [f"drivers.zenoh: {', '.join(off)} without a config_file: no TLS, no authentication (docs/security.md)"] if off else []
 
 
-def _seed(v: str) -> int:
-    n = int(v)
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"must be ≥ 0 (got {n})")
-    return n
-
-
 def _run_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="capm-field run", description=__doc__.split("\n")[0])
     ap.add_argument("mission", help="mission YAML file")
     ap.add_argument("--out", help="output directory (default: the mission's output.dir)")
-    ap.add_argument("--seed", type=_seed, help="bench seed ≥ 0 (overrides drivers.seed)")
+    ap.add_argument("--seed", type=cli_seed, help="bench seed ≥ 0 (overrides drivers.seed)")
     ap.add_argument("--faults", help="bench fault schedule: 'random:SEED' or KIND@TARGET[,KIND@TARGET...]")
     ap.add_argument("--quiet", action="store_true", help="no progress line")
     ap.add_argument("--force", action="store_true", help="overwrite run.mcap/summary.json already in the output directory")

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from capm_field.cli_args import seed as cli_seed
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
 from capm_field.detector import detect_centre, ground_centre, roi_from_troi
@@ -188,17 +189,15 @@ def _fmt(d: dict, unit: str) -> str:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="capm-field bench-perception", description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=300, help="number of scenes (default 300)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=cli_seed, default=0)
     ap.add_argument("--bare-share", type=float, default=0.15, help="share of bare-soil scenes (default 0.15)")
     ap.add_argument("--no-roi", action="store_true", help="search the whole image instead of the projected TROI")
     ap.add_argument("--json", metavar="FILE", help="write the figures to FILE")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     try:
         a = ap.parse_args(argv)
-    except SystemExit as e:
-        if e.code == 0:
-            return 0
-        raise UserError("invalid arguments (see capm-field bench-perception --help)") from None
+    except SystemExit as e:  # argparse printed its usage and error line already
+        return 0 if e.code == 0 else 2
     check_output(a.json, "--json")
     if a.scenes < 1:
         raise UserError(f"--scenes must be at least 1, got {a.scenes}")

@@ -16,6 +16,7 @@ import sys
 import threading
 from dataclasses import dataclass
 
+from capm_field.cli_args import seed as cli_seed
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2
 from drivers.body_protocol import LinkConfig, is_loopback_endpoint
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--state-rate", type=float, default=100.0, help="state publication rate (Hz)")
     ap.add_argument("--estop-timeout", type=float, default=1.0, help="E-stop keep-alive timeout (s)")
     ap.add_argument("--lease-ttl", type=float, default=2.0, help="body lease TTL (s)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=cli_seed, default=0)
     ap.add_argument("--zenoh-config", help="zenoh JSON5 config: TLS, user/password, access control (docs/security.md)")
     a = ap.parse_args(argv)
     done = threading.Event()

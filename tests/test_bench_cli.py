@@ -63,6 +63,11 @@ def test_bench_cli_json(tmp_path):
         (["bench-drivers", "--json", "/no/such/dir/d.json"], "directory /no/such/dir does not exist"),
         (["regions", "--out", "/no/such/dir/r.png"], "directory /no/such/dir does not exist"),
         (["bench", "--trials", "2", "--json", "/"], "is a directory"),
+        # a negative seed reached numpy (a traceback)
+        (["bench", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
+        (["bench-fields", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
+        (["bench-perception", "--scenes", "1", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
+        (["bench-perception", "--scenes", "x"], "--scenes: invalid int value"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(args, needle):
