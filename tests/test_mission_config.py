@@ -201,7 +201,7 @@ def test_run_refuses_bad_faults_seeds_and_configs_before_writing_anything(tmp_pa
     block the corrected run); a hardware mission's zenoh config is checked by `run` as by
     `validate`, before any driver opens (was: exit 1 from the CAN bus, config never checked)."""
     p = _write(tmp_path, GOOD)
-    for extra, msg in ((["--faults", "meteor@0"], "fault kind 'meteor' unknown"), (["--seed", "-1"], "must be ≥ 0")):
+    for extra, msg in ((["--faults", "meteor@0"], "fault kind 'meteor' unknown"), (["--seed", "-1"], "must be in [0, 2**63 - 1]")):
         out = tmp_path / "out"
         r = subprocess.run(CLI + ["run", str(p), "--out", str(out), "--quiet"] + extra, capture_output=True, text=True)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
