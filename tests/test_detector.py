@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from capm_field.camera import PinholeCamera
-from capm_field.config import CameraConfig
+from capm_field.config import CameraConfig, TaskConfig
 from capm_field.detector import Detection, Roi, detect_centre, ground_centre, roi_from_troi
 from sim_bench.perception_bench import make_case
 from sim_bench.plants import WEED_KINDS
@@ -902,3 +902,21 @@ def test_glaucous_rule_takes_coloured_leaves_not_neutral_stones() -> None:
     assert not _plant_like(dict(leaf, sat_raw=0.03))
     assert not _plant_like(dict(leaf, gsig=6.0))  # too close to the soil's noise
     assert not _plant_like(leaf, vivid=True)  # the second look keeps its own, vivid-only rules
+
+
+def test_pale_seedling_found_by_local_contrast_while_yellow_soil_tints_are_not() -> None:
+    """Second look, colour band where pale seedlings and soil tints overlap (gb 0.085–0.15, sat
+    0.29–0.42): bench seed 3 case 233, a yellow-green seedling missed by both colour rules, is a
+    plant by its contrast with the soil right round it; bench seed 3 case 8, a yellow soil whose
+    tints fall in the same band (7 components), stays bare."""
+    bare = set(np.random.default_rng(3).choice(300, 45, replace=False).tolist())
+    assert 233 not in bare and 8 in bare
+    for i, plant in ((233, True), (8, False)):
+        case = make_case(3, i, CAM, TaskConfig().delta, bare=i in bare)
+        img = case.scene.render(case.T, CAM)
+        det = detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
+        if plant:
+            assert det.reason is None, det
+            assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.008
+        else:
+            assert det.reason == "no_plant", det
