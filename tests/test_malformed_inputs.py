@@ -15,14 +15,8 @@ import pytest
 from capm_field import cli
 from capm_field.config import ArmConfig, BodyConfig, CameraConfig, TaskConfig
 from mission.config import MissionError, load_mission
+from test_mission_config import GOOD  # the minimal good mission the cases below spoil
 
-GOOD = """\
-field:
-  trois:
-    - {x: 1.0, y: 2.0, r: 0.2}
-start: {x: 0, y: 0}
-drivers: {kind: bench, seed: 3}
-"""
 HW = "field: {trois: [{x: 1, y: 1, r: 0.2}]}\nstart: {x: 0, y: 0}\ndrivers:\n  kind: hardware\n  zenoh: ZENOH\n"
 
 
