@@ -1021,12 +1021,6 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
         if uv is not None:
             method = "fan_apex"
-        else:
-            # blades merged by blur or nearly parallel: their axes do not meet in the votes, but
-            # the fan's base is the extremity from which every blade runs straight
-            uv = plant_centre.fan_base(plant, size)
-            if uv is not None:
-                method = "fan_base"
     # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin
     # parts meet, then (below) where trefoils point away from, or the middle of the parts
     # arranged round an empty centre; blades and narrow leaves (and round plants where none of

@@ -4,9 +4,7 @@ Every estimator works on one plant's mask (bool, ~PLANT_PX across, see `capm_fie
 and, where it needs colour, the vegetation index on the same grid; coordinates are (x, y) grid
 pixels. They assume nothing about the camera. `capm_field.detector._centre_fullres` chooses,
 the first that answers:
-  - thin blades leaning one way (a grass fan): `fan_apex`, where the blade axes converge, else
-    (blades merged or nearly parallel, `blade_fraction` ≥ FAN_BLADES) `fan_base`, the extremity
-    from which every blade runs straight;
+  - thin blades leaning one way (a grass fan): `fan_apex`, where the blade axes converge;
   - plants with rounded parts (clover, seedlings, broad rosettes): `petiole_centre` (straight
     stalks crossing), `line_hub` (thin parts converging), each only inside the broad parts'
     hull (`within_broad_hull`);
@@ -523,80 +521,6 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int) ->
     if gap < FAN_GAP or not straight <= FAN_STRAIGHT:
         return None
     return p
-
-
-FAN_BLADE_OPEN = 0.04  # × plant size: radius of the disc that erases blades but not leaves
-FAN_SPREAD = 0.25  # rad: the far tips seen from a fan's base span at least this
-FAN_BLADES = 0.25  # fraction of the plant that opening must erase for `fan_base` to apply
-# (bench seeds 0–3, plants that reached it: rosettes, clovers, seedlings erased ≤ 0.22, grass 0.06–0.86)
-
-
-def _leaves_only(plant: np.ndarray, size: float) -> np.ndarray:
-    """The plant opened by a disc of radius FAN_BLADE_OPEN × size: leaves, leaflets and
-    cotyledons stay, blades and stalks (narrower) go (uint8 mask)."""
-    r = max(1, int(round(FAN_BLADE_OPEN * size)))
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    return cv2.morphologyEx(plant.astype(np.uint8), cv2.MORPH_OPEN, k)
-
-
-def blade_fraction(plant: np.ndarray, size: float, leaves: np.ndarray | None = None) -> float:
-    """Share of the plant made of blades and stalks: what `_leaves_only` erases."""
-    leaves = _leaves_only(plant, size) if leaves is None else leaves
-    return 1.0 - float(np.count_nonzero(leaves)) / max(1, int(np.count_nonzero(plant)))
-
-
-def fan_base(plant: np.ndarray, size: float) -> np.ndarray | None:
-    """Base of a fan of blades whose axes do not converge in `axis_votes` (blades merged by
-    blur, or nearly parallel), or None; only for plants that are ≥ FAN_BLADES blades
-    (`blade_fraction`). The base of a fan is itself an extremity of the plant:
-    from it, the other blade tips lie on one side (empty sector ≥ FAN_GAP) and are reached
-    along straight blades, whereas from a
-    blade's tip the paths to the other tips bend at the base. Candidates: the leaf tips (`_tips`,
-    geodesic extremities from the geometric median) that lie on the blades (≥ 0.1·size from
-    what an opening by FAN_BLADE_OPEN·size keeps: a leaflet's tip is not a base) and from which
-    the far tips spread over ≥ FAN_SPREAD (from the end of a stem with one branch they do not);
-    the straightest qualifying one wins (worst tip path ÷ straight line ≤ FAN_STRAIGHT).
-    """
-    leaves = _leaves_only(plant, size)
-    if blade_fraction(plant, size, leaves) < FAN_BLADES:
-        return None  # most of a rosette, clover or seedling survives the opening
-    band = cv2.dilate(plant.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)), iterations=max(1, int(BAND * size)))
-    cost = np.where(plant, 1.0, np.where(band > 0, GAP_COST, np.inf))
-    G, node = _grid_graph(cost)
-    ys, xs = np.nonzero(plant)
-    g = geometric_median(np.c_[xs, ys].astype(float))
-    k = int(np.argmin((xs - g[0]) ** 2 + (ys - g[1]) ** 2))
-    tips = _tips(dijkstra(G, directed=False, indices=[node[ys[k], xs[k]]])[0], node, plant, size)
-    if len(tips) < FAN_MIN_TIPS + 1:
-        return None
-    P = np.argwhere(node >= 0)[tips][:, ::-1].astype(float)
-    # the base is on the blades (a leaflet's or a leaf's tip lies on a part the opening keeps)
-    to_leaf = cv2.distanceTransform((1 - leaves).astype(np.uint8), cv2.DIST_L2, 3) if leaves.any() else None
-    D = dijkstra(G, directed=False, indices=tips)[:, tips]
-    best, best_straight = None, FAN_STRAIGHT
-    for i in range(len(tips)):
-        if to_leaf is not None and to_leaf[int(P[i, 1]), int(P[i, 0])] < 0.1 * size:
-            continue
-        d = P - P[i]
-        r = np.hypot(d[:, 0], d[:, 1])
-        far = r > 0.15 * size
-        if far.sum() < FAN_MIN_TIPS:
-            continue
-        ang = np.sort(np.arctan2(d[far, 1], d[far, 0]))
-        gap = float(np.max(np.diff(np.r_[ang, ang[0] + 2 * np.pi])))  # widest empty sector of the tips
-        if gap < FAN_GAP or 2 * np.pi - gap < FAN_SPREAD:
-            continue  # tips all round, or no fan from here (one line: a stem seen from its end)
-        # every blade straight from the base (from a leaf's tip, the paths to the leaves beside
-        # it bend at the plant's centre)
-        straight = float(np.max(D[i, far] / r[far]))
-        if not straight <= best_straight:
-            continue
-        dx, dy = xs - P[i, 0], ys - P[i, 1]
-        sel = dx * dx + dy * dy > (0.15 * size) ** 2
-        if _longest_empty_sector(np.arctan2(dy[sel], dx[sel])) < 0.8 * FAN_GAP:
-            continue
-        best, best_straight = P[i], straight
-    return best
 
 
 def _tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:

@@ -456,56 +456,6 @@ def test_hand_made_photos_of_various_sizes() -> None:
         assert err < 0.4, (name, err)
 
 
-def _fan_mask(angles, base=(20, 100), length=80, stem=0.3, w=3) -> np.ndarray:
-    """Blades from `base` at `angles` (rad, counter-clockwise from +x, image y down), merged into
-    one stem 2w wide over the first `stem` of their length."""
-    m = np.zeros((120, 120), np.uint8)
-    b = np.array(base, float)
-    s_end = b + stem * length * np.array([math.cos(np.mean(angles)), -math.sin(np.mean(angles))])
-    cv2.line(m, tuple(int(v) for v in b), tuple(int(v) for v in s_end), 1, 2 * w)
-    for a in angles:
-        tip = b + length * np.array([math.cos(a), -math.sin(a)])
-        cv2.line(m, tuple(int(v) for v in b), tuple(int(round(v)) for v in tip), 1, w)
-    return m > 0
-
-
-def test_fan_base_of_narrow_grass_fans_and_not_of_other_shapes() -> None:
-    """Narrow fans of thin blades merged near the base: the tree median slides up the blades
-    (≥ 0.09 of the size off), `fan_base` finds the base (bench seed 1 case 74: 47 → 5.7 mm).
-    A stem with one branch (no fan from either end), two trefoils on long stalks and a rosette
-    of broad leaves get no fan base."""
-    from capm_field import plant_centre as pc
-
-    def size_of(p):
-        ys, xs = np.nonzero(p)
-        return math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
-
-    for stem in (0.3, 0.5):
-        for angles in ([0.9, 1.05, 1.25], [0.8, 0.95, 1.1]):
-            p = _fan_mask(angles, stem=stem)
-            size = size_of(p)
-            assert pc.blade_fraction(p, size) >= pc.FAN_BLADES
-            X = pc.fan_base(p, size)
-            assert X is not None and math.hypot(X[0] - 20, X[1] - 100) < 0.05 * size, (stem, angles, X)
-            T = pc.tree_median(p, np.where(p, 0.3, 0.0).astype(np.float32))[0]
-            assert math.hypot(T[0] - 20, T[1] - 100) > 0.09 * size  # what it replaces
-    m = np.zeros((120, 120), np.uint8)
-    cv2.line(m, (60, 10), (60, 110), 1, 3)
-    cv2.line(m, (60, 40), (45, 15), 1, 3)
-    assert pc.fan_base(m > 0, size_of(m > 0)) is None
-    m = np.zeros((120, 120), np.uint8)  # two trefoils on long stalks meeting at an obtuse angle
-    cv2.polylines(m, [np.array([[20, 20], [50, 55], [100, 70]], np.int32)], False, 1, 3)
-    for cx, cy in ((20, 20), (100, 70)):
-        for k in range(3):
-            a = 2 * math.pi * k / 3
-            cv2.circle(m, (int(cx + 8 * math.cos(a)), int(cy + 8 * math.sin(a))), 7, 1, -1)
-    assert pc.fan_base(m > 0, size_of(m > 0)) is None
-    m = np.zeros((120, 120), np.uint8)
-    for a in np.linspace(0, 2 * np.pi, 6, endpoint=False):
-        cv2.ellipse(m, (int(60 + 25 * math.cos(a)), int(60 + 25 * math.sin(a))), (25, 10), math.degrees(a), 0, 360, 1, -1)
-    assert pc.blade_fraction(m > 0, size_of(m > 0)) < pc.FAN_BLADES
-
-
 def test_stalk_centre_ignores_a_blade_that_carries_no_leaf() -> None:
     """Stalks A (long) and B (short) meet at the centre C; a straight blade grouped with the
     plant but far from every leaf lies on a line through the far end of A. Blade + A outweigh
