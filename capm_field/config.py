@@ -29,6 +29,14 @@ def _has_bool(v: Any) -> bool:
     return isinstance(v, bool) or (isinstance(v, (list, tuple)) and any(_has_bool(x) for x in v))
 
 
+def not_bool(v: Any) -> Any:
+    """Before-validator of a number: YAML 1.1 reads yes/no/on/off as booleans, which pydantic
+    would take as 1 / 0 (`StrictNumbers` applies it to every numeric field of a model)."""
+    if _has_bool(v):
+        raise ValueError("a number is needed, not a yes/no value")
+    return v
+
+
 class StrictNumbers(BaseModel):
     """Refuses yes/no values where a number is expected: YAML 1.1 reads yes/no/on/off as booleans
     and pydantic would take them as 1 / 0 (a `seed: yes` or `max_speed: on` would pass)."""
@@ -37,9 +45,7 @@ class StrictNumbers(BaseModel):
     @classmethod
     def _no_yes_no(cls, v: Any, info: ValidationInfo) -> Any:
         f = cls.model_fields.get(info.field_name or "")
-        if f is not None and _has_bool(v) and not _takes_bool(f.annotation):
-            raise ValueError("a number is needed, not a yes/no value")
-        return v
+        return v if f is None or _takes_bool(f.annotation) else not_bool(v)
 
 
 class _Frozen(StrictNumbers):

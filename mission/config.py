@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from capm_field.config import RobotConfig, StrictNumbers, TaskConfig
+from capm_field.config import RobotConfig, StrictNumbers, TaskConfig, not_bool
 from capm_field.errors import UserError
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
@@ -38,16 +38,10 @@ TROI_ID_RE = re.compile(r"^(?=.{1,64}\Z)[^\x00-\x20\x7f-\x9f](?:[^\x00-\x1f\x7f-
 LEG_MARGIN = 0.8  # a leg of the visit may take at most this share of the body's move timeout
 
 
-def _not_bool(v: Any) -> Any:
-    # YAML 1.1 reads yes/no/on/off as booleans, which pydantic would take as 1.0 / 0.0
-    if isinstance(v, bool):
-        raise ValueError("a number is needed, not a yes/no value")
-    return v
-
-
-Real = Annotated[float, BeforeValidator(_not_bool)]
-Timeout = Annotated[float, BeforeValidator(_not_bool), Field(gt=0.0, le=MAX_TIMEOUT_S)]
-Coord = Annotated[float, BeforeValidator(_not_bool), Field(ge=-FIELD_EXTENT, le=FIELD_EXTENT)]
+# numbers of `_Strict` models refuse yes/no values through `StrictNumbers`; dict values and the
+# fields of `_Tagged` models say so themselves (`not_bool`)
+Timeout = Annotated[float, BeforeValidator(not_bool), Field(gt=0.0, le=MAX_TIMEOUT_S)]
+Coord = Annotated[float, Field(ge=-FIELD_EXTENT, le=FIELD_EXTENT)]
 
 
 class MissionError(UserError):
@@ -70,7 +64,7 @@ class _Strict(StrictNumbers, _Tagged):
 class Pose(_Strict):
     x: Coord  # field frame, m
     y: Coord
-    yaw: Real = Field(0.0, description="rad")
+    yaw: float = Field(0.0, description="rad")
 
     def se2(self) -> SE2:
         return SE2(self.x, self.y, self.yaw)
@@ -86,7 +80,7 @@ class TroiSpec(_Strict):
     id: str | None = None
     x: Coord
     y: Coord
-    r: Real = Field(gt=0.0, le=0.5, description="TROI radius r_w (m)")
+    r: float = Field(gt=0.0, le=0.5, description="TROI radius r_w (m)")
 
     @field_validator("id")
     @classmethod
@@ -124,7 +118,7 @@ class FaultSpec(_Strict):
 
 class BenchDrivers(_Tagged):
     kind: Literal["bench"]
-    seed: Annotated[int, BeforeValidator(_not_bool)] = Field(0, ge=0)
+    seed: Annotated[int, BeforeValidator(not_bool)] = Field(0, ge=0)
     transport: Literal["inprocess", "wire"] = Field("inprocess", description="in-process sim, or real adapters over loopback")
     faults: list[FaultSpec] | str = Field(default_factory=list, description="list, or 'random:SEED'")
     mpoi_in_troi: bool = Field(True, description="true MPOIs are drawn from N(X_w, Σ_w) restricted to the TROI")
