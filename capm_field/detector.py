@@ -816,8 +816,10 @@ LC_RING = (3, 9)  # full-resolution dilations whose difference is the ring of so
 
 
 def _contrast_band(f: dict) -> bool:
-    """Whether the second look measures a candidate's local contrast (`_local_contrast`)."""
-    return f["elong"] <= LC_ELONG and f["gb"] >= LC_GB and f["sat"] >= LC_SAT and f["gsig"] >= LC_SIGMA
+    """Whether the second look measures a candidate's local contrast (`_local_contrast`): only
+    where the colour rule alone does not take it (below VIVID_SAT or VIVID_GB)."""
+    return f["elong"] <= LC_ELONG and f["gb"] >= LC_GB and f["sat"] >= LC_SAT and f["gsig"] >= LC_SIGMA \
+        and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB)
 
 
 def _stands_out(f: dict) -> bool:
