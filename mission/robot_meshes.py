@@ -26,7 +26,7 @@ HULL_GRID = 0.003  # m: vertices snapped to this grid before the hull (shape err
 GLB_MEDIA_TYPE = "model/gltf-binary"
 # glTF is Y-up; Foxglove (like ROS, REP-103) is Z-up and rotates a glTF scene +90° about x on
 # load, so link coordinates (x, y, z) are written as (x, z, −y).
-_Z_UP_TO_GLTF = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
+Z_UP_TO_GLTF = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
 _LOADABLE = (".stl", ".obj", ".ply", ".off", ".glb")  # formats trimesh reads without extra packages
 SPOT_BODY_SIZE = (1.1, 0.5, 0.19)  # m: Spot's body, drawn below the body frame (the arm base's height)
 
@@ -99,7 +99,7 @@ def _hull_glb(path: Path, scale: np.ndarray) -> tuple[bytes, int]:
     m = trimesh.load(path, force="mesh")
     v = np.unique(np.round(np.asarray(m.vertices) * scale / HULL_GRID), axis=0) * HULL_GRID
     hull = trimesh.PointCloud(v).convex_hull
-    hull.apply_transform(_Z_UP_TO_GLTF)
+    hull.apply_transform(Z_UP_TO_GLTF)
     return trimesh.exchange.gltf.export_glb(trimesh.Scene(hull)), len(hull.faces)
 
 
@@ -133,14 +133,3 @@ def link_meshes(urdf_path: Path) -> tuple[LinkMesh, ...]:
     except Exception as e:  # noqa: BLE001 - unreadable URDF: the run log says so, the run goes on
         log.warning("robot meshes: cannot read %s: %s", urdf_path, e)
         return ()
-
-
-def glb_vertices(glb: bytes) -> np.ndarray:
-    """Vertices of a glTF binary back in Z-up link coordinates (for checks)."""
-    import trimesh
-
-    scene = trimesh.load(trimesh.util.wrap_as_stream(glb), file_type="glb")
-    mesh = scene.to_geometry() if hasattr(scene, "to_geometry") else scene.dump(concatenate=True)
-    v = np.c_[np.asarray(mesh.vertices), np.ones(len(mesh.vertices))]
-    return (v @ np.linalg.inv(_Z_UP_TO_GLTF).T)[:, :3]
-

@@ -20,7 +20,7 @@ from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig
 from capm_field.geometry import SE2
 from capm_field.robot_model import default_urdf_path
-from mission.robot_meshes import GLB_MEDIA_TYPE, HULL_GRID, glb_vertices, link_meshes, resolve_mesh
+from mission.robot_meshes import GLB_MEDIA_TYPE, HULL_GRID, Z_UP_TO_GLTF, link_meshes, resolve_mesh
 from mission.runlog import RunLog
 
 T0 = 5_000_000_000
@@ -34,6 +34,12 @@ def _scene(path: Path):
     schema, msg = msgs[0]
     assert schema.name == "foxglove.SceneUpdate"
     return msg.log_time, DecoderFactory().decoder_for("protobuf", schema)(msg.data)
+
+
+def glb_vertices(glb: bytes) -> np.ndarray:
+    """Vertices of a glTF binary back in Z-up link coordinates."""
+    v = trimesh.load(trimesh.util.wrap_as_stream(glb), file_type="glb").to_geometry().vertices
+    return (np.c_[v, np.ones(len(v))] @ np.linalg.inv(Z_UP_TO_GLTF).T)[:, :3]
 
 
 @pytest.fixture(scope="module")
