@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from . import compound_leaf, leaf_axes, plant_centre
+from . import compound_leaf, leaf_axes, plant_centre, stalks
 from .camera import PinholeCamera
 
 log = logging.getLogger(__name__)
@@ -506,6 +506,44 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
 
 
 # ---- pieces ------------------------------------------------------------------------------------
+STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
+
+
+def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
+                  lab_index: bool, thr: float, soil: float) -> np.ndarray | None:
+    """`stalks.stalk_centre` for a plant on the stage-2 grid (grid pixel (j, i) ↔ image
+    (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)). It works at the image's own pitch
+    (stalks are 1–3 px wide there; coarser only for plants over stalks.MAX_PX), on a window
+    reaching stalks.MARGIN × the plant's size round it (a clover's centre may lie outside the
+    leaves that stage 1 grouped); the answer is in stage-2 grid pixels."""
+    nh, nw = plant.shape
+    H, W = img.shape[:2]
+    span = max(nw * kx, nh * ky)  # the stage-2 window in image pixels
+    p = max(1.0, span / stalks.MAX_PX)  # pitch of the stalk grid, image pixels
+    m = stalks.MARGIN * span
+    xa, ya = max(int(math.floor(X0 - m)), 0), max(int(math.floor(Y0 - m)), 0)
+    xb, yb = min(int(math.ceil(X0 + nw * kx + m)), W), min(int(math.ceil(Y0 + nh * ky + m)), H)
+    if xb - xa < 16 or yb - ya < 16:
+        return None
+    NW, NH = max(int((xb - xa) / p), 8), max(int((yb - ya) / p), 8)
+    region = _resize_down(img[ya:yb, xa:xb], (NW, NH)) if p > 1.0 else img[ya:yb, xa:xb]
+    p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
+    grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
+    vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
+    # the plant's mask onto this grid: stalk grid (x, y) ↔ region (x·p, y·p) (pixel centres:
+    # (x + 0.5)·p − 0.5) ↔ stage-2 grid ((xa + (x + 0.5)·p − 0.5 − X0 + 0.5) / kx − 0.5)
+    M = np.array([[p_x / kx, 0, (xa - X0 + 0.5 * p_x) / kx - 0.5], [0, p_y / ky, (ya - Y0 + 0.5 * p_y) / ky - 0.5]], np.float32)
+    NH, NW = region.shape[:2]
+    big = cv2.warpAffine(plant.astype(np.uint8), M, (NW, NH), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_CONSTANT) > 0
+    leaves = _hysteresis(vi, thr, soil, np.ones(vi.shape, bool)) | big
+    X = stalks.stalk_centre(grey, vi, leaves, big)
+    if X is None:
+        return None
+    x, y = xa + (X[0] + 0.5) * p_x - 0.5, ya + (X[1] + 0.5) * p_y - 0.5  # image pixels
+    return np.array([(x - X0 + 0.5) / kx - 0.5, (y - Y0 + 0.5) / ky - 0.5])
+
+
 def _mask_box(xs: np.ndarray, ys: np.ndarray, to_full) -> tuple[float, float, float, float]:
     """Full-image box (x0, y0, x1, y1) of stage-1 grid pixels (xs, ys)."""
     fx0, fy0 = to_full(np.array([xs.min() - 0.5, ys.min() - 0.5]))
@@ -1043,6 +1081,10 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         n_peaks = plant_centre.vote_peaks(votes, size)
     compound = False
     hubs = None
+    if uv is None and n_peaks >= STALK_PEAKS:
+        uv = _stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
+        if uv is not None:
+            method = "stalk_centre"
     if uv is None and n_peaks >= 2:
         # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
         # not show: the rays back from the hubs (after the stalk estimators, which are exact

@@ -95,47 +95,9 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
         segs.append((m + d * (t.max() + t.min()) / 2, d, L / 2, L))
     if len(segs) < 2:
         return None
-    tol = max(1.5, 0.04 * size)
-    reach = 0.35 * size
-    best, best_sup = None, 0.0
-    for i in range(len(segs)):
-        for j in range(i + 1, len(segs)):
-            (ci, di, hi, _), (cj, dj, hj, _) = segs[i], segs[j]
-            cross = di[0] * dj[1] - di[1] * dj[0]
-            if abs(cross) < math.sin(math.radians(20)):
-                continue
-            # ci + a·di = cj + b·dj
-            dc = cj - ci
-            a = (dc[0] * dj[1] - dc[1] * dj[0]) / cross
-            b = (dc[0] * di[1] - dc[1] * di[0]) / cross
-            if not (hi - tol <= abs(a) <= hi + reach and hj - tol <= abs(b) <= hj + reach):
-                continue
-            X = ci + a * di
-            sup = 0.0
-            for (c, d, h, w) in segs:
-                v = X - c
-                along = float(v @ d)
-                if abs(v[0] * d[1] - v[1] * d[0]) <= tol and h - tol <= abs(along) <= h + reach:
-                    sup += w
-            if sup > best_sup:
-                best, best_sup = X, sup
-    if best is None:
+    X = meeting_point(segs, max(1.5, 0.04 * size), 0.35 * size)
+    if X is None:
         return None
-    # least-squares point of the supporting lines
-    A = np.zeros((2, 2))
-    bb = np.zeros(2)
-    nsup = 0
-    for (c, d, h, w) in segs:
-        v = best - c
-        along = float(v @ d)
-        if abs(v[0] * d[1] - v[1] * d[0]) <= tol and h - tol <= abs(along) <= h + reach:
-            Pm = np.eye(2) - np.outer(d, d)
-            A += w * Pm
-            bb += w * Pm @ c
-            nsup += 1
-    if nsup < 2:
-        return None
-    X = np.linalg.solve(A + 1e-9 * np.eye(2), bb)
     h, w_ = plant.shape
     if not (0 <= X[0] < w_ and 0 <= X[1] < h):
         return None
@@ -147,6 +109,60 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     if dt[int(X[1]), int(X[0])] > 0.12 * size:
         return None
     return X
+
+
+def meeting_point(segs: list, tol: float, reach: float, directed: bool = False) -> np.ndarray | None:
+    """Where ≥ 2 straight pieces (centre point, unit direction d, half-length h, weight) point to:
+    every crossing of two lines (≥ 20° apart) lying beyond an end of both pieces (between
+    h − tol and h + reach from the piece's middle; with `directed`, beyond the end d points to)
+    is a hypothesis, supported by the pieces whose line passes within `tol` of it the same way;
+    the best-supported one, refined by weighted least squares over its support."""
+    def beyond(along: float, h: float) -> bool:
+        return h - tol <= (along if directed else abs(along)) <= h + reach
+
+    def passes(along: float, h: float) -> bool:  # directed: anywhere from the piece's middle on
+        return (0.0 <= along <= h + reach) if directed else beyond(along, h)
+
+    best, best_sup = None, 0.0
+    for i in range(len(segs)):
+        for j in range(i + 1, len(segs)):
+            (ci, di, hi, _), (cj, dj, hj, _) = segs[i], segs[j]
+            cross = di[0] * dj[1] - di[1] * dj[0]
+            if abs(cross) < math.sin(math.radians(20)):
+                continue
+            # ci + a·di = cj + b·dj
+            dc = cj - ci
+            a = (dc[0] * dj[1] - dc[1] * dj[0]) / cross
+            b = (dc[0] * di[1] - dc[1] * di[0]) / cross
+            # (directed: one of them may run on past the meeting, a stalk merged with the next)
+            if not (beyond(a, hi) and passes(b, hj) or passes(a, hi) and beyond(b, hj)):
+                continue
+            X = ci + a * di
+            sup = 0.0
+            for (c, d, h, w) in segs:
+                v = X - c
+                if abs(v[0] * d[1] - v[1] * d[0]) <= tol and passes(float(v @ d), h):
+                    sup += w
+            if sup > best_sup:
+                best, best_sup = X, sup
+    if best is None:
+        return None
+    # least-squares point of the supporting lines
+    A = np.zeros((2, 2))
+    bb = np.zeros(2)
+    nsup = 0
+    for (c, d, h, w) in segs:
+        v = best - c
+        if abs(v[0] * d[1] - v[1] * d[0]) <= tol and passes(float(v @ d), h):
+            Pm = np.eye(2) - np.outer(d, d)
+            A += w * Pm
+            bb += w * Pm @ c
+            nsup += 1
+    if nsup < 2:
+        return None
+    return np.linalg.solve(A + 1e-9 * np.eye(2), bb)
+
+
 HUB_MIN_ROUND = 0.022
 
 

@@ -1,0 +1,181 @@
+"""Where a plant's visible stalks meet: the centre of a plant whose leaves sit at the ends of
+long, thin stalks that the vegetation index does not segment (olive, reddish or pale petioles
+of clover and its kin, on any soil).
+
+Stage-2 estimator of the weed-centre detector (see `capm_field.plant_centre` for the others).
+It works on the grey image, not on colour: a stalk is a straight line darker or lighter than
+the soil on both sides. Line strength is measured per pixel (Hessian across the line, minus
+what a step edge explains), and its direction tensor is averaged over a stalk-length
+neighbourhood: along a straight stalk the directions agree, in the soil's texture they do
+not. Straight pieces that leave a leaf and point away from it are stalks, and the plant's
+centre is where ≥ 2 of them point to (`plant_centre.meeting_point`). Measured on bench seeds
+0–3 (docs/perception.md). Coordinates are (x, y) pixels of the grid the caller passes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from .plant_centre import HUB_OPEN, HULL_TOL, meeting_point
+
+SIGMA = 1.0  # px: Gaussian scale of the line filter (stalks 1–3 px wide on the stalk grid)
+SEG_LEN = 0.12  # × plant size: the neighbourhood (3 σ) over which line directions must agree
+N_DIRS = 16  # direction bins that keep crossing stalks apart
+EDGE_K = 2.0  # line strength minus this × gradient magnitude (a step edge's flanks are not lines)
+PX_K = 0.15  # a stalk pixel: its own line strength ≥ this × the 99th percentile on the soil ...
+LINE_K = 1.0  # ... and its neighbourhood's agreeing strength ≥ this × that percentile
+CLUSTER = 0.05  # × the plant's area: smallest leaf cluster (≥ 2 needed)
+MIN_LEN = 0.12  # × size: shortest stalk piece
+ATTACH = 0.10  # × size: farthest a stalk's far end may be from a leaf (a stalk carries a leaf)
+AWAY = 0.08  # × size (+ 2 px): how far from every leaf a stalk piece must get somewhere along it
+REACH = 0.25  # × size: how far beyond a piece's free end the centre may lie (hidden stalk start)
+TOL = 0.04  # × size (≥ 1.5 px): how close a supporting piece's line must pass the centre
+MAX_BARE = 0.5  # × size: farthest the centre may be from the plant
+MARGIN = 0.5  # × the plant window: how far round it the caller looks for stalks and the centre
+MAX_PX = 100  # longest side of the plant window on the stalk grid (the image is shrunk beyond)
+
+
+def line_strength(grey: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Straight thin lines in a float grey image: (agreeing strength, direction bin, own strength).
+
+    Own strength, per pixel: the Hessian's |eigenvalue| across a line (either polarity) where
+    the one along it is small, less EDGE_K × the gradient magnitude. Agreeing strength: the
+    coherent part (λ1 − λ2) of the line-direction tensor weighted by it, averaged with a
+    Gaussian of σ = length / 3; its direction, in N_DIRS bins over [0, π)."""
+    f = cv2.GaussianBlur(grey, (0, 0), SIGMA)
+    fxx = cv2.Sobel(f, cv2.CV_32F, 2, 0, ksize=3)
+    fyy = cv2.Sobel(f, cv2.CV_32F, 0, 2, ksize=3)
+    fxy = cv2.Sobel(f, cv2.CV_32F, 1, 1, ksize=3)
+    grad = np.hypot(cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)) / 8
+    disc = np.sqrt((fxx - fyy) ** 2 + 4 * fxy**2)
+    l1 = 0.5 * (fxx + fyy - disc)  # most negative: across a light line
+    l2 = 0.5 * (fxx + fyy + disc)  # most positive: across a dark line
+    light = np.where((l1 < 0) & (np.abs(l2) < 0.5 * np.abs(l1)), -l1, 0.0)
+    dark = np.where((l2 > 0) & (np.abs(l1) < 0.5 * np.abs(l2)), l2, 0.0)
+    st = np.maximum(np.maximum(light, dark) / 4 - EDGE_K * grad, 0.0).astype(np.float32)
+    # the direction along the line: perpendicular to the eigenvector of the eigenvalue used
+    phi = 0.5 * np.arctan2(2 * fxy, fxx - fyy)  # eigenvector of l2 (across a dark line)
+    along = np.where(light > dark, phi, phi + np.pi / 2)
+    # line-direction tensor of the strengths, averaged over ~`length` px: a straight line keeps
+    # one direction (its coherent part, λ1 − λ2, stays), soil texture's lines point every way
+    c, s_ = np.cos(along), np.sin(along)
+    sig = max(length / 3.0, 1.5)
+    txx = cv2.GaussianBlur((st * c * c).astype(np.float32), (0, 0), sig)
+    txy = cv2.GaussianBlur((st * c * s_).astype(np.float32), (0, 0), sig)
+    tyy = cv2.GaussianBlur((st * s_ * s_).astype(np.float32), (0, 0), sig)
+    best = np.sqrt((txx - tyy) ** 2 + 4 * txy**2)
+    th = 0.5 * np.arctan2(2 * txy, txx - tyy)  # the dominant line direction
+    idx = (np.round(np.mod(th, np.pi) / (np.pi / N_DIRS)).astype(np.int32) % N_DIRS).astype(np.uint8)
+    return best, idx, st
+
+
+def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant: np.ndarray) -> np.ndarray | None:
+    """Where ≥ 2 stalks meet, in grid pixels; or None.
+
+    grey: float grey image on the grid, reaching ~MARGIN × the plant's size round it; index:
+    the vegetation index there (a green stalk on a soil of its brightness); leaves: every
+    vegetation pixel there (bool); plant: the chosen plant's mask (bool), of ≥ 2 separate leaf
+    clusters. A stalk is a straight piece of line off the leaves' broad parts (≥ MIN_LEN ×
+    size, reaching ≥ AWAY from them) whose one end touches a leaf (within ATTACH); the centre
+    lies at or beyond its other, free end (within REACH), within MAX_BARE of the plant and
+    within the hull of the leaves.
+    """
+    ys, xs = np.nonzero(plant)
+    if len(xs) < 20:
+        return None
+    size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
+    # only for a plant of separate leaf clusters (leaves on stalks): one blob or a tuft has none
+    r = max(1, int(round(HUB_OPEN * size)))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    n, _, st, _ = cv2.connectedComponentsWithStats(cv2.morphologyEx(plant.astype(np.uint8), cv2.MORPH_OPEN, disc), connectivity=8)
+    if int(np.count_nonzero(st[1:, cv2.CC_STAT_AREA] >= CLUSTER * len(xs))) < 2:
+        return None
+    # the leaves a stalk may carry: the plant's, and vegetation within MARGIN × size of it
+    # (leaves the plant's grouping left out); not a stone or a plant further off; their broad
+    # parts (a stalk the index did segment is a thin part, and may be found as a line)
+    near = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3) <= MARGIN * size
+    n, lab = cv2.connectedComponents(leaves.astype(np.uint8), connectivity=8)
+    mine = np.unique(lab[near & leaves])
+    lv = cv2.morphologyEx((np.isin(lab, mine[mine > 0]) | plant).astype(np.uint8), cv2.MORPH_OPEN, disc)
+    off_leaf = cv2.distanceTransform(1 - lv, cv2.DIST_L2, 3)
+    far = off_leaf > 0.25 * size  # soil: the reference for the line strengths
+    if np.count_nonzero(far) < 50:
+        return None
+    # lines in the grey image and in the index, each in units of its own soil texture
+    strength, idx, on = None, None, None
+    for img in (grey, index):
+        st_, id_, px = line_strength(img, SEG_LEN * size)
+        st_ = st_ / max(float(np.percentile(st_[far], 99)), 1e-6)
+        px_on = px > PX_K * max(float(np.percentile(px[far], 99)), 1e-6)
+        if strength is None:
+            strength, idx, on = st_, id_, px_on
+        else:
+            idx = np.where(st_ > strength, id_, idx)
+            strength = np.maximum(strength, st_)
+            on |= px_on
+    free = (off_leaf > 1.5).astype(np.uint8)  # off the leaves' broad parts
+    on &= (strength > LINE_K) & (free > 0)
+    segs = []
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    h, w = grey.shape
+    L = max(5, int(round(SEG_LEN * size)) | 1)
+    per_dir = np.bincount(idx[on], minlength=N_DIRS)
+    for k in range(N_DIRS):  # pieces of one direction (± one step), so crossing stalks stay apart
+        if per_dir[k] + per_dir[(k + 1) % N_DIRS] < MIN_LEN * size:
+            continue  # too few pixels for one piece
+        band = (on & ((idx == k) | (idx == (k + 1) % N_DIRS))).astype(np.uint8)
+        by, bx = np.nonzero(band)  # work in the band's box (+ the closing's reach)
+        y0, x0 = max(int(by.min()) - L, 0), max(int(bx.min()) - L, 0)
+        band = band[y0:int(by.max()) + L + 1, x0:int(bx.max()) + L + 1]
+        # bridge short breaks along the direction (a stalk under a speck of soil or a leaf edge)
+        th = math.pi * (k + 0.5) / N_DIRS
+        ker = np.zeros((L, L), np.uint8)
+        c0, dx, dy = L // 2, L // 2 * math.cos(th), L // 2 * math.sin(th)
+        cv2.line(ker, (int(round(c0 - dx)), int(round(c0 - dy))), (int(round(c0 + dx)), int(round(c0 + dy))), 1, 1)
+        band = cv2.morphologyEx(band, cv2.MORPH_CLOSE, ker) & free[y0:y0 + band.shape[0], x0:x0 + band.shape[1]]
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(band, connectivity=8)
+        for c in range(1, n):
+            if stats[c, cv2.CC_STAT_AREA] < MIN_LEN * size:
+                continue
+            yy, xx = np.nonzero(lab == c)
+            yy, xx = yy + y0, xx + x0
+            P = np.c_[xx, yy].astype(float)
+            m = P.mean(0)
+            ev, evec = np.linalg.eigh(np.cov((P - m).T) + 1e-9 * np.eye(2))
+            d = evec[:, 1]
+            t = (P - m) @ d
+            Lp = float(t.max() - t.min()) + 1
+            if Lp < MIN_LEN * size or Lp < 4 * (math.sqrt(12 * max(ev[0], 0)) + 0.5):
+                continue
+            if float(off_leaf[yy, xx].max()) < AWAY * size + 2:
+                continue  # it runs along a leaf's edge (a leaflet's rim), not away from it
+            e0, e1 = m + d * t.min(), m + d * t.max()
+            if any(np.linalg.norm(e0 - a) < 2 and np.linalg.norm(e1 - b) < 2 for a, b in seen):
+                continue  # the same piece from the neighbouring direction band
+            seen.append((e0, e1))
+            d0, d1 = (float(off_leaf[min(int(round(e[1])), h - 1), min(int(round(e[0])), w - 1)]) for e in (e0, e1))
+            # oriented from the leaf it carries towards its free end (the centre's side)
+            for leaf_end, free_end, dl in ((e0, e1, d0), (e1, e0, d1)):
+                if dl <= max(ATTACH * size, 2.0):
+                    u = (free_end - leaf_end) / max(np.linalg.norm(free_end - leaf_end), 1e-9)
+                    segs.append(((leaf_end + free_end) / 2, u, Lp / 2, Lp))
+    if len(segs) < 2:
+        return None
+    X = meeting_point(segs, max(1.5, TOL * size), REACH * size, directed=True)
+    if X is None:
+        return None
+    if not (0 <= X[0] < w and 0 <= X[1] < h):
+        return None
+    off_plant = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3)
+    if off_plant[int(X[1]), int(X[0])] > MAX_BARE * size:
+        return None
+    # leaves sit round their centre: it lies within the hull of the leaves (the plant's and
+    # those its stalks carry), not out where straw or a stone edge crosses a stalk
+    ly, lx = np.nonzero(lv)
+    hull = cv2.convexHull(np.c_[lx, ly].astype(np.float32))
+    if cv2.pointPolygonTest(hull, (float(X[0]), float(X[1])), True) < -HULL_TOL * size:
+        return None
+    return X
