@@ -787,7 +787,10 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
 
 STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5
 STRAW_ELONG = 6.5  # same on the stage-1 grid (weeds measured ≤ 5.9 but one merged with straw)
-STRAW_RAW = -0.02  # g_raw below which a long straight piece is straw (measured: straw −0.04, olive grass blades ≥ −0.005)
+STRAW_RAW = -0.012  # g_raw below which a long straight piece is straw (measured: straw −0.04 … −0.010, olive
+# grass blades ≥ −0.005; bench seeds 0–3, plant-like pieces of elongation > STRAW_ELONG: the weed's own ≥ −0.0098,
+# bare soil's down to −0.016; −0.02 → −0.012: bench bare soil 2 more of 180; bench weeds, other renderer seeds 0–2,
+# photo-like grass (seed 3) and 200 fresh bare scenes unchanged)
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
 
 
