@@ -530,8 +530,8 @@ def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant
     p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
     grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
     vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
-    # the plant's mask onto this grid: stalk grid (x, y) ↔ region (x·p, y·p) (pixel centres:
-    # (x + 0.5)·p − 0.5) ↔ stage-2 grid ((xa + (x + 0.5)·p − 0.5 − X0 + 0.5) / kx − 0.5)
+    # the plant's mask onto this grid: stalk-grid pixel x ↔ image xa + (x + 0.5)·p_x − 0.5 ↔
+    # stage-2 grid (xa + (x + 0.5)·p_x − 0.5 − X0 + 0.5) / kx − 0.5 (and the same for y)
     M = np.array([[p_x / kx, 0, (xa - X0 + 0.5 * p_x) / kx - 0.5], [0, p_y / ky, (ya - Y0 + 0.5 * p_y) / ky - 0.5]], np.float32)
     NH, NW = region.shape[:2]
     big = cv2.warpAffine(plant.astype(np.uint8), M, (NW, NH), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,

@@ -101,8 +101,7 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     h, w_ = plant.shape
     if not (0 <= X[0] < w_ and 0 <= X[1] < h):
         return None
-    # on or next to the plant (the centre of a clover may be bare, but not far from the leaves)
-    # inside the plant's convex hull and on or next to the plant (a clover centre may be bare)
+    # inside the plant's convex hull and on or next to the plant (a clover's centre may be bare)
     if not hull[int(X[1]), int(X[0])]:
         return None
     dt = cv2.distanceTransform((1 - pm).astype(np.uint8), cv2.DIST_L2, 3)
