@@ -507,8 +507,9 @@ def test_compound_centre_declines_plants_without_three_lobed_hubs() -> None:
 
 def test_compound_leaves_are_told_from_simple_leaves_and_blades() -> None:
     """`has_compound_leaves` (trefoils whose rays back did not meet → the geometric median, not
-    the tree median): true for 4–6 trefoils round a centre, false for a rosette of long simple
-    leaves, a fan of grass blades and a disc, on an ~80 px stage-2 grid."""
+    the tree median): true for 4–6 trefoils round a centre and for two on opposite stalks,
+    false for a rosette of long simple leaves, a fan of grass blades and a disc, on an ~80 px
+    stage-2 grid."""
     from capm_field.compound_leaf import compound_hubs, has_compound_leaves
 
     def verdict(draw) -> bool:
@@ -533,6 +534,12 @@ def test_compound_leaves_are_told_from_simple_leaves_and_blades() -> None:
                 _trefoil(m, c + rng.uniform(20, 30) * np.array([math.cos(a), math.sin(a)]), a, s, 1)
 
         assert verdict(clover), angs
+
+    def two_trefoils(m):
+        for a in (0.3, 0.3 + np.pi):
+            _trefoil(m, c + 26 * np.array([math.cos(a), math.sin(a)]), a, 13, 1)
+
+    assert verdict(two_trefoils)
 
     def rosette(m):
         for a in np.linspace(0, 2 * np.pi, 7, endpoint=False) + 0.2:
