@@ -8,6 +8,8 @@ the first that answers:
   - plants with rounded parts (clover, seedlings, broad rosettes): `petiole_centre` (straight
     stalks crossing), `line_hub` (thin parts converging), each only inside the broad parts'
     hull (`within_broad_hull`);
+  - leaf axes converging at ≥ 2 points (`vote_peaks`): first stalks the index misses but
+    the grey image shows, `capm_field.stalks` (where they meet); then
   - compound leaves whose stalks do not show (clover trefoils): `capm_field.compound_leaf`,
     where rays back from the three-lobed hubs agree; then, for rounded parts,
     `component_median` (separate parts round an empty middle, same hull rule);
