@@ -516,6 +516,8 @@ def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant
     (stalks are 1–3 px wide there; coarser only for plants over stalks.MAX_PX), on a window
     reaching stalks.MARGIN × the plant's size round it (a clover's centre may lie outside the
     leaves that stage 1 grouped); the answer is in stage-2 grid pixels."""
+    if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
+        return None
     nh, nw = plant.shape
     H, W = img.shape[:2]
     span = max(nw * kx, nh * ky)  # the stage-2 window in image pixels

@@ -72,6 +72,24 @@ def line_strength(grey: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarr
     return best, idx, st
 
 
+def _disc(size: float) -> np.ndarray:
+    """The opening disc that leaves a plant's broad parts (HUB_OPEN × its size)."""
+    r = max(1, int(round(HUB_OPEN * size)))
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+
+def has_leaf_clusters(plant: np.ndarray) -> bool:
+    """Whether a plant mask (any grid) is ≥ 2 separate leaf clusters (broad parts, each ≥ CLUSTER
+    of its area): leaves on stalks. One blob or a tuft of blades has no stalks to find."""
+    ys, xs = np.nonzero(plant)
+    if len(xs) < 20:
+        return False
+    size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
+    _, _, st, _ = cv2.connectedComponentsWithStats(cv2.morphologyEx(plant.astype(np.uint8), cv2.MORPH_OPEN, _disc(size)),
+                                                   connectivity=8)
+    return int(np.count_nonzero(st[1:, cv2.CC_STAT_AREA] >= CLUSTER * len(xs))) >= 2
+
+
 def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant: np.ndarray) -> np.ndarray | None:
     """Where ≥ 2 stalks meet, in grid pixels; or None.
 
@@ -83,16 +101,11 @@ def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant:
     lies at or beyond its other, free end (within REACH), within MAX_BARE of the plant and
     within the hull of the leaves.
     """
+    if not has_leaf_clusters(plant):
+        return None
     ys, xs = np.nonzero(plant)
-    if len(xs) < 20:
-        return None
     size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
-    # only for a plant of separate leaf clusters (leaves on stalks): one blob or a tuft has none
-    r = max(1, int(round(HUB_OPEN * size)))
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    n, _, st, _ = cv2.connectedComponentsWithStats(cv2.morphologyEx(plant.astype(np.uint8), cv2.MORPH_OPEN, disc), connectivity=8)
-    if int(np.count_nonzero(st[1:, cv2.CC_STAT_AREA] >= CLUSTER * len(xs))) < 2:
-        return None
+    disc = _disc(size)
     # the leaves a stalk may carry: the plant's, and vegetation within MARGIN × size of it
     # (leaves the plant's grouping left out); not a stone or a plant further off; their broad
     # parts (a stalk the index did segment is a thin part, and may be found as a line)
