@@ -843,6 +843,9 @@ STRONG_SIGMA = 12.0
 VIVID_SAT, VIVID_GB = 0.42, 0.15  # second look: bare-soil candidates measured sat ≤ 0.38, gb ≤ 0.14
 BIG_FRAC, BIG_GB, BIG_SAT, BIG_SIGMA = 0.01, 0.09, 0.30, 8.0  # second look: a candidate ≥ 1 % of the window
 # (bench bare soil: those reach gb 0.081, saturation 0.24, 2.8 σ; weeds missed there: ≥ 0.096, 0.31)
+HUGE_FRAC, HUGE_GB, HUGE_SAT = 0.02, 0.10, 0.33  # second look: a candidate ≥ 2 % of the window this coloured needs
+# no margin in soil σ (a large pale rosette on a bright, grainy sand: 3.3 σ, gb 0.12, sat 0.36, bench seed 3
+# case 80; every bench component that large off the weed measured gb ≤ 0.085, sat ≤ 0.29)
 VIVID_WB = 0.5  # exponent on the soil white balance in the second look: half (a full pull towards a reddish
 # soil turns yellow-green leaves on grey-olive soil orange; none measured 0.4 % fewer detections)
 VIVID_AREA = 4.0  # × the minimum component area (a 20-px green speck on bare soil came up)
@@ -920,6 +923,7 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not (
             f["area_frac"] >= BIG_FRAC and f["gb"] >= BIG_GB and f["sat"] >= BIG_SAT and f["gsig"] >= BIG_SIGMA) \
+            and not (f["area_frac"] >= HUGE_FRAC and f["gb"] >= HUGE_GB and f["sat"] >= HUGE_SAT) \
             and not _stands_out(f):
         # (a large candidate, ≥ 1 % of the window, needs less: soil tints that large are dull)
         # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
