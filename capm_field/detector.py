@@ -905,6 +905,14 @@ def _local_contrast(img: np.ndarray, sub: np.ndarray, origin: tuple[int, int], w
     return (float(np.median(vf[m > 0])) - float(np.median(rv))) / max(float(rv.std()), 1e-4), core
 
 
+def _large_and_coloured(f: dict) -> bool:
+    """Second look: a large candidate needs less than the vivid colour (soil tints that large are
+    dull): ≥ BIG_FRAC of the window with gb ≥ BIG_GB, saturation ≥ BIG_SAT and ≥ BIG_SIGMA soil σ,
+    or ≥ HUGE_FRAC with gb ≥ HUGE_GB and saturation ≥ HUGE_SAT whatever its σ."""
+    big = f["area_frac"] >= BIG_FRAC and f["gb"] >= BIG_GB and f["sat"] >= BIG_SAT and f["gsig"] >= BIG_SIGMA
+    return big or f["area_frac"] >= HUGE_FRAC and f["gb"] >= HUGE_GB and f["sat"] >= HUGE_SAT
+
+
 def _plant_like(f: dict, vivid: bool = False) -> bool:
     """Whether a candidate's colour is that of a live plant rather than soil, stone or straw.
 
@@ -913,19 +921,15 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
     Grey-green (dull), glaucous and blue-green (teal) leaves have rules of their own. Any
     candidate must be greener than magenta before the white balance (gm_raw ≥ GM_RAW_MIN). The second look
-    (`vivid`, −a*) takes vivid colours, teal leaves, and any candidate of ≥ BIG_FRAC of the
-    window (`area_frac`) with gb ≥ BIG_GB, saturation ≥ BIG_SAT and ≥ BIG_SIGMA σ.
+    (`vivid`, −a*) takes vivid colours, teal leaves, large coloured candidates
+    (`_large_and_coloured`) and compact ones that stand out from the soil round them (`_stands_out`).
     """
     if f["gm_raw"] < GM_RAW_MIN:
         # not greener than magenta in the camera's own colours: a grey stone (or anything
         # neutral) that the white balance on a purplish or red soil made look green
         return False
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
-    if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not (
-            f["area_frac"] >= BIG_FRAC and f["gb"] >= BIG_GB and f["sat"] >= BIG_SAT and f["gsig"] >= BIG_SIGMA) \
-            and not (f["area_frac"] >= HUGE_FRAC and f["gb"] >= HUGE_GB and f["sat"] >= HUGE_SAT) \
-            and not _stands_out(f):
-        # (a large candidate, ≥ 1 % of the window, needs less: soil tints that large are dull)
+    if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not _large_and_coloured(f) and not _stands_out(f):
         # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
         return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR
     # the weaker the absolute greenness, the stronger the margin over the soil must be: ≥ 5 σ

@@ -13,6 +13,8 @@ import numpy as np
 
 from .config import Transform
 
+FIELD_EXTENT_M = 10_000.0  # |x|, |y| of any field-frame position (m): beyond it, a unit error (lon/lat, mm)
+
 
 def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
     """Wrap to [-π, π)."""

@@ -19,9 +19,11 @@ from typing import Any, Mapping
 
 import cbor2
 
+from capm_field.geometry import FIELD_EXTENT_M
+
 VERSION = 1
 MAX_PAYLOAD = 4096  # bytes; anything larger is malformed (bounds decoding work on hostile input)
-GOAL_EXTENT_M = 10_000.0  # |x|, |y| of a Move goal (field-frame metres, as mission files): beyond it, a unit error
+GOAL_EXTENT_M = FIELD_EXTENT_M  # |x|, |y| of a Move goal (field-frame metres, as mission files): beyond it, a unit error
 
 _ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 

@@ -23,11 +23,11 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from capm_field.config import RobotConfig, StrictNumbers, TaskConfig, not_bool
 from capm_field.errors import UserError
+from capm_field.geometry import FIELD_EXTENT_M as FIELD_EXTENT
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
 
 PLANNER_NAMES = ("a", "b", "c", "cstar", "field")
-FIELD_EXTENT = 10_000.0  # m: |x|, |y| of any pose or TROI (field-frame metres; lon/lat or mm are not)
 MAX_MISSION_BYTES = 4 * 2**20
 MAX_PRESCAN_BYTES = 16 * 2**20
 MAX_TROIS = 5000  # ~14 h of flaming at ~10 s a weed; ordering them alone takes ~9 s

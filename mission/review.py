@@ -33,7 +33,7 @@ from rerun.chunk import McapReader
 
 from capm_field.errors import UserError, check_output
 
-from .runlog import _PROTO_TOPICS, TOPICS
+from .runlog import PROTO_TOPICS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
@@ -60,7 +60,7 @@ COLORS = {
 }
 _CUSTOM = {TOPICS[k] for k in ("plan", "key_state", "detection", "regions", "energy", "igniter", "truth_mpoi", "tf")}
 # the schema each topic drawn here must carry: another one (a foreign or hand-made file) is skipped
-_SCHEMAS = {TOPICS[k]: f"capm.log.{v}" for k, v in _PROTO_TOPICS.items()} | {TOPICS["tf"]: "foxglove.FrameTransforms"}
+_SCHEMAS = {TOPICS[k]: f"capm.log.{v}" for k, v in PROTO_TOPICS.items()} | {TOPICS["tf"]: "foxglove.FrameTransforms"}
 
 
 def _part(target_id: str) -> str:

@@ -79,7 +79,7 @@ TOPICS = {
     "truth_mpoi": "/truth/mpoi",
     "robot_meshes": "/robot/meshes",
 }
-_PROTO_TOPICS = {
+PROTO_TOPICS = {
     "plan": "Plan",
     "key_state": "KeyState",
     "detection": "Detection",
@@ -204,7 +204,7 @@ class RunLog:
                 message_encoding="protobuf",
                 context=ctx,
             )
-            for key, msg in _PROTO_TOPICS.items()
+            for key, msg in PROTO_TOPICS.items()
         }
         meta = {"bench": str(bool(bench)).lower(), "urdf": robot.urdf_path.name, "created_unix_ns": str(time.time_ns())}
         meta.update(metadata or {})
@@ -299,7 +299,7 @@ class RunLog:
         return SceneUpdate(entities=entities)
 
     def _proto_msg(self, key: str, t_ns: int, **fields):
-        m = S.message_class(_PROTO_TOPICS[key])(**fields)
+        m = S.message_class(PROTO_TOPICS[key])(**fields)
         m.timestamp.FromNanoseconds(int(t_ns))
         return m
 

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from capm_field.cli_args import MAX_SEED
 from capm_field.errors import UserError
 
 # kind → (default phase, what is injected)
@@ -62,7 +63,6 @@ FAULT_PARAMS: dict[str, dict[str, tuple]] = {
     "fuel_low": {"level": (float, 0.0, 1.0)},
     "igniter_stall": {"stall_s": (float, 0.0, 60.0)},
 }
-MAX_SEED = 2**63 - 1
 
 
 def _check_params(f: "Fault") -> None:
