@@ -32,6 +32,7 @@ from drivers.can.codec import (
 from sim_bench.can_rig import CanBench, RawHost
 from sim_bench.sim_arm import DISABLED, FAULT, HOLDING
 from sim_bench.sim_igniter import IgniterBoard
+from waiting import wait_for
 
 KA = IGN_EVENT_CODES["keepalive_timeout"]
 BAD = IGN_EVENT_CODES["bad_frame"]
@@ -147,12 +148,7 @@ def test_board_host_lost_while_armed_reports_host_lost():
 
 # ---- wire: igniter board ---------------------------------------------------------------------
 def _wait(pred, timeout: float = 2.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
+    return wait_for(pred, timeout, step=0.005)
 
 
 def _keepalives(host: RawHost, duration: float) -> None:

@@ -24,19 +24,11 @@ from drivers.interfaces import DriverError
 from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
 from sim_bench.can_rig import CanBench, RawHost
 from sim_bench.zenoh_body_server import free_port, serve_sim_body
+from waiting import wait_for
 
 RID = "foreign"
 P = f"capm/{RID}/body"
 FAST = BodyConfig(max_speed=2.0, max_accel=4.0, max_yaw_rate=3.0)
-
-
-def wait_for(pred, timeout: float = 3.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return pred()
 
 
 def ask(s: zenoh.Session, key: str, payload: bytes | None) -> tuple[bool, dict]:

@@ -29,6 +29,7 @@ from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
 from sim_bench.dev_pki import make_dev_pki
 from sim_bench.sim_body import SimBody, SimClock
 from sim_bench.zenoh_body_server import SimBackend, free_port, serve_sim_body, spawn_server
+from waiting import wait_for
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "mission" / "examples"
 RID = "spot"  # the robot id the templates' ACL is written for
@@ -60,15 +61,6 @@ def tls_peer(pki: Path, port: int, cert: str | None, ca: str = "ca", mtls: bool 
     if mtls:
         o["transport/link/tls/enable_mtls"] = True
     return LinkConfig(connect=(f"tls/127.0.0.1:{port}",), overrides=o)
-
-
-def wait_for(pred, timeout: float = 3.0, step: float = 0.01) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(step)
-    return pred()
 
 
 class Probe:

@@ -20,6 +20,7 @@ from drivers.body_protocol import Keys, LinkConfig, decode, encode, pose_map
 from drivers.interfaces import LeaseRefused, LinkLost
 from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
 from sim_bench.zenoh_body_server import free_port, serve_sim_body, spawn_server
+from waiting import wait_for
 
 FAST = BodyConfig(max_speed=2.0, max_accel=4.0, max_yaw_rate=3.0)
 RID = "proto"
@@ -43,15 +44,6 @@ def raw(port):
     yield open_
     for s in holder.get("sessions", []):
         s.close()
-
-
-def wait_for(pred, timeout: float = 3.0, step: float = 0.01) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(step)
-    return pred()
 
 
 def ask(session: zenoh.Session, key: str, payload: bytes | None) -> tuple[bool, dict]:
