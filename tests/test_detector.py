@@ -112,13 +112,12 @@ def test_large_pale_rosette_on_grainy_sand_is_a_plant() -> None:
     """Bench seed 3 case 80: a pale yellow-green rosette covering ~5 % of the window on a bright,
     grainy sand stands only 3.3 soil σ above it in −a* (the second look), short of the 8 σ the
     large-candidate rule asked; at that size its colour (gb 0.12, saturation 0.36) is enough."""
-    cam = PinholeCamera.from_config(CameraConfig())
-    case = make_case(3, 80, cam, TaskConfig().delta, False)
+    case = make_case(3, 80, CAM, TaskConfig().delta, False)
     assert case.kind == "rosette"
-    img = case.scene.render(case.T, cam)
-    det = detect_centre(img, roi_from_troi(cam, case.T, case.troi_centre, case.troi_radius))
+    img = case.scene.render(case.T, CAM)
+    det = detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
     assert det.reason is None, det
-    assert np.linalg.norm(ground_centre(cam, case.T, det) - case.scene.weeds[0].centre) < 0.01
+    assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.01
 
 
 @pytest.mark.parametrize("seed, index", [(2, 214), (3, 210)])
@@ -127,12 +126,11 @@ def test_olive_straw_on_bench_bare_soil_is_not_a_plant(seed: int, index: int) ->
     made olive (raw G − max(R, B) ≈ −0.010 … −0.016 of the sum, elongation 9–16): straw, not a
     weed (the weeds' own long pieces measured ≥ −0.0098). With STRAW_RAW at −0.02 both were
     answered as plants (confidence 0.42)."""
-    cam = PinholeCamera.from_config(CameraConfig())
     bare = set(np.random.default_rng(seed).choice(300, 45, replace=False).tolist())
     assert index in bare
-    case = make_case(seed, index, cam, TaskConfig().delta, True)
-    img = case.scene.render(case.T, cam)
-    det = detect_centre(img, roi_from_troi(cam, case.T, case.troi_centre, case.troi_radius))
+    case = make_case(seed, index, CAM, TaskConfig().delta, True)
+    img = case.scene.render(case.T, CAM)
+    det = detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
     assert det.reason == "no_plant", det
 
 
