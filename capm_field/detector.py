@@ -913,6 +913,22 @@ def _large_and_coloured(f: dict) -> bool:
     return big or f["area_frac"] >= HUGE_FRAC and f["gb"] >= HUGE_GB and f["sat"] >= HUGE_SAT
 
 
+def _raw_blue_green(f: dict) -> bool:
+    """Second look: bluish-green leaves of middling colour (gb 0.04–0.08, saturation 0.22–0.30,
+    below the vivid and teal rules) that are green above both red and blue in the camera's own
+    colours (g_raw ≥ RAW_BG_RAW), greener than red after the white balance, ≥ RAW_BG_SIGMA soil σ
+    out, and saturated before the white balance too (sat_raw ≥ RAW_BG_SAT_RAW: a grey stone under
+    a green cast is as green in the raw image, but measured sat_raw ≤ 0.20)."""
+    return f["g_raw"] >= RAW_BG_RAW and f["gr"] >= RAW_BG_GR and f["gsig"] >= RAW_BG_SIGMA \
+        and f["sat"] >= RAW_BG_SAT and f["sat_raw"] >= RAW_BG_SAT_RAW
+
+
+RAW_BG_RAW, RAW_BG_GR, RAW_BG_SIGMA, RAW_BG_SAT, RAW_BG_SAT_RAW = 0.02, 0.05, 8.0, 0.20, 0.23  # (session 13:
+# other renderer's bluish-green grass and seedlings, g_raw 0.021–0.057, sat_raw 0.26; bench bare-soil components
+# of the second look on seeds 0–3 and 200 fresh bare scenes: none passes; bench/stones_on_soils.py: 46 of 384
+# without the sat_raw clause, 31 with it, as before the rule)
+
+
 def _plant_like(f: dict, vivid: bool = False) -> bool:
     """Whether a candidate's colour is that of a live plant rather than soil, stone or straw.
 
@@ -922,7 +938,8 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     Grey-green (dull), glaucous and blue-green (teal) leaves have rules of their own. Any
     candidate must be greener than magenta before the white balance (gm_raw ≥ GM_RAW_MIN). The second look
     (`vivid`, −a*) takes vivid colours, teal leaves, large coloured candidates
-    (`_large_and_coloured`) and compact ones that stand out from the soil round them (`_stands_out`).
+    (`_large_and_coloured`), compact ones that stand out from the soil round them (`_stands_out`)
+    and bluish-green ones that are green in the raw image too (`_raw_blue_green`).
     """
     if f["gm_raw"] < GM_RAW_MIN:
         # not greener than magenta in the camera's own colours: a grey stone (or anything
@@ -930,6 +947,8 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
         return False
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not _large_and_coloured(f) and not _stands_out(f):
+        if _raw_blue_green(f):
+            return True
         # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
         return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR
     # the weaker the absolute greenness, the stronger the margin over the soil must be: ≥ 5 σ

@@ -900,6 +900,23 @@ def test_five_kinds_from_another_renderer_with_a_roi() -> None:
     assert found >= 21 and within >= 15, (found, within)
 
 
+def test_bluish_green_plants_green_in_the_raw_image_are_found() -> None:
+    """Two bluish-green weeds of bench/other_renderer_plants.py (seed 0 case 60, a grass tuft on
+    dark wet soil; seed 2 case 92, a seedling on brown soil), whole frames without a ROI: too
+    dull for the vivid and teal rules of the second look ("no_plant" before `_raw_blue_green`),
+    but green above red and blue in the camera's own colours and saturated there."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "other_renderer_plants.py"
+    spec = importlib.util.spec_from_file_location("other_renderer_plants", path)
+    orp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(orp)
+    for seed, i in ((0, 60), (2, 92)):
+        img, truth, S, _ = orp.render(np.random.default_rng([seed, i]), orp.KINDS[i % 5])
+        det = detect_centre(img)
+        assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.1 * S, (seed, i, det)
+
+
 @pytest.mark.parametrize("ratio", [1.1, 1.45, 1.5, 1.7, 2.0, 2.5, 3.3, 4.7])
 def test_fast_downscale_matches_area_resampling(ratio: float) -> None:
     """The stage-1 downscale (bilinear + integer box average) stays within a grey level of
