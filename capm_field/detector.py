@@ -848,7 +848,9 @@ HUGE_FRAC, HUGE_GB, HUGE_SAT = 0.02, 0.10, 0.33  # second look: a candidate ≥ 
 # case 80; every bench component that large off the weed measured gb ≤ 0.085, sat ≤ 0.29)
 VIVID_WB = 0.5  # exponent on the soil white balance in the second look: half (a full pull towards a reddish
 # soil turns yellow-green leaves on grey-olive soil orange; none measured 0.4 % fewer detections)
-VIVID_AREA = 4.0  # × the minimum component area (a 20-px green speck on bare soil came up)
+VIVID_AREA = 3.0  # × the minimum component area (a 20-px green speck on bare soil came up; 4.0 until
+# session 13: bench seed 1 case 1, a seedling of 41 stage-1 px under 4 × 11.8, lost to a distractor 63 mm away; 3.0 moved
+# no bench bare-soil frame, none of 200 fresh bare scenes or bench/stones_on_soils.py, bench wrong 25 → 24)
 # second look, local contrast: a compact candidate in the colour band just below VIVID_* (where
 # pale seedlings and soil tints overlap) is a plant when it stands out from the soil right round
 # it (a leaf is a patch with an edge; a soil tint fades into its surroundings). Measured on bench

@@ -120,6 +120,17 @@ def test_large_pale_rosette_on_grainy_sand_is_a_plant() -> None:
     assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.01
 
 
+def test_small_seedling_seen_only_by_the_second_look_is_eligible() -> None:
+    """Bench seed 1 case 1: a small seedling the second look segments is under 4 × the minimum
+    component area, so a distractor 63 mm away was answered (VIVID_AREA 4.0 until session 13)."""
+    case = make_case(1, 1, CAM, TaskConfig().delta, False)
+    assert case.kind == "seedling"
+    img = case.scene.render(case.T, CAM)
+    det = detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
+    assert det.reason is None, det
+    assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.005
+
+
 @pytest.mark.parametrize("seed, index", [(2, 214), (3, 210)])
 def test_olive_straw_on_bench_bare_soil_is_not_a_plant(seed: int, index: int) -> None:
     """Bench bare-soil scenes whose only candidates are long straws that the scene's light
