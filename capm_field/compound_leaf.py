@@ -4,7 +4,7 @@ Stage-2 estimator of the weed-centre detector (see `capm_field.plant_centre` for
 and the grid they work on). Each compound leaf sits at the end of a straight stalk from the
 plant's centre with its middle leaflet pointing straight away from it; round the leaf's hub
 the leaflets form three lobes, whose phase gives each hub three candidate rays back to the
-centre. Measured on bench seeds 0–3 (docs/perception.md).
+centre. Measured with `bench/perception_failures.py` on bench seeds 0–3.
 """
 
 from __future__ import annotations

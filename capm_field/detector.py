@@ -856,7 +856,7 @@ VIVID_AREA = 3.0  # × the minimum component area (a 20-px green speck on bare s
 # it (a leaf is a patch with an edge; a soil tint fades into its surroundings). Measured on bench
 # seeds 0–3 (AUC 0.95 all seedlings vs all bare components; 0.70 for the missed ones): misses +
 # wrong 53 → 51, bare soil unchanged (also 200 fresh bare scenes); photo-like seeds 3–6 +6
-# detections, other renderer +2 (docs/perception.md)
+# detections, other renderer +2 (commit 6e662de)
 LC_ELONG, LC_GB, LC_SAT, LC_SIGMA = 4.0, 0.085, 0.29, 5.0  # (LC_ELONG 3.5 until session 12: bench seed 2
 # case 25, two cotyledons in a line at 3.7, was missed; 4.0 moved nothing else on the bench, 200 fresh bare
 # scenes, other renderer seeds 0–2 or photo-like seeds 3–6)
@@ -880,8 +880,8 @@ def _stands_out(f: dict) -> bool:
 def _local_contrast(img: np.ndarray, sub: np.ndarray, origin: tuple[int, int], win: "_Window", gains: np.ndarray,
                     thr: float, soil: float) -> tuple[float, float]:
     """(local contrast, core share) of a stage-1 candidate mask `sub` whose top-left grid cell is
-    `origin`: at full resolution, (median −a* index of its pixels − median in a ring 3–9 px
-    round them) / the ring's σ; and the share of `sub` left after a 3 × 3 erosion."""
+    `origin`: at full resolution, (median −a* index of its pixels − median in a ring ~1–4 px
+    round them: a 9 × 9 dilation minus a 3 × 3 one) / the ring's σ; and the share of `sub` left after a 3 × 3 erosion."""
     l0, t0 = origin
     h0, w0 = sub.shape
     sp = np.pad(sub.astype(np.uint8), 1)

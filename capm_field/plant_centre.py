@@ -44,7 +44,7 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
 
     Clover petioles and rosette leaf stalks are straight lines from the biological centre to
     their leaf. Thin parts (mask minus its opening by a disc ~2.5 % of the plant size) are
-    split into pieces; each elongated piece (length ≥ 12 % of the size, ≥ 4× longer than wide)
+    split into pieces; each elongated piece (length ≥ PET_MINLEN of the size, ≥ 3× longer than wide)
     gives a line (principal axis of its second moments) if it comes within PET_LEAF_GAP of a
     broad part (a stalk carries a leaf). Stalks start at the centre, so the
     lines of two stalks cross there, beyond one end of each piece (a stalk's start may be

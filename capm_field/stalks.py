@@ -8,8 +8,8 @@ the soil on both sides. Line strength is measured per pixel (Hessian across the 
 what a step edge explains), and its direction tensor is averaged over a stalk-length
 neighbourhood: along a straight stalk the directions agree, in the soil's texture they do
 not. Straight pieces that leave a leaf and point away from it are stalks, and the plant's
-centre is where ≥ 2 of them point to (`plant_centre.meeting_point`). Measured on bench seeds
-0–3 (docs/perception.md). Coordinates are (x, y) pixels of the grid the caller passes.
+centre is where ≥ 2 of them point to (`plant_centre.meeting_point`). Measured with
+`bench/perception_failures.py` on bench seeds 0–3. Coordinates are (x, y) pixels of the grid the caller passes.
 """
 
 from __future__ import annotations

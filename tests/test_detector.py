@@ -487,7 +487,7 @@ def test_hand_made_photos_of_various_sizes() -> None:
         assert err < 0.4, (name, err)
 
 
-def test_stalk_centre_ignores_a_blade_that_carries_no_leaf() -> None:
+def test_petiole_centre_ignores_a_blade_that_carries_no_leaf() -> None:
     """Stalks A (long) and B (short) meet at the centre C; a straight blade grouped with the
     plant but far from every leaf lies on a line through the far end of A. Blade + A outweigh
     A + B, so without the "a stalk carries a leaf" rule the answer is that far end, 33 px off
