@@ -863,12 +863,17 @@ LC_ELONG, LC_GB, LC_SAT, LC_SIGMA = 4.0, 0.085, 0.29, 5.0  # (LC_ELONG 3.5 until
 LC_MIN = 5.8  # (index inside − ring median) / ring σ for a plant ...
 LC_MIN_THICK, LC_CORE = 3.5, 0.44  # ... or this much with ≥ LC_CORE of it left by a 3 × 3 erosion (not a thin rim)
 LC_RING = (3, 9)  # full-resolution dilations whose difference is the ring of soil round the candidate
+# paler than LC_SAT: in the band only with twice LC_SIGMA over the soil (weaker colour, stronger margin). Bench
+# seeds 0-3: +1 seedling, a grass 27 -> 7 mm (sat 0.278-0.290, >= 14 sigma); at 0.25 without the margin a soil patch
+# of 200 fresh bare scenes (6.3 sigma) was a plant; photo-like, other renderer, stones unchanged
+LC_SAT_PALE, LC_SIGMA_PALE = 0.25, 10.0
 
 
 def _contrast_band(f: dict) -> bool:
     """Whether the second look measures a candidate's local contrast (`_local_contrast`): only
     where the colour rule alone does not take it (below VIVID_SAT or VIVID_GB)."""
-    return f["elong"] <= LC_ELONG and f["gb"] >= LC_GB and f["sat"] >= LC_SAT and f["gsig"] >= LC_SIGMA \
+    sat_ok = f["sat"] >= LC_SAT or f["sat"] >= LC_SAT_PALE and f["gsig"] >= LC_SIGMA_PALE
+    return f["elong"] <= LC_ELONG and f["gb"] >= LC_GB and sat_ok and f["gsig"] >= LC_SIGMA \
         and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB)
 
 

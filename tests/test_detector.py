@@ -108,7 +108,8 @@ def test_straw_is_not_a_plant() -> None:
     assert det.reason == "no_plant", det
 
 
-@pytest.mark.parametrize("seed, index, kind, tol", [(3, 80, "rosette", 0.01), (1, 1, "seedling", 0.005)])
+@pytest.mark.parametrize("seed, index, kind, tol",
+                         [(3, 80, "rosette", 0.01), (1, 1, "seedling", 0.005), (0, 269, "seedling", 0.005)])
 def test_second_look_bench_weeds_are_found(seed: int, index: int, kind: str, tol: float) -> None:
     """Bench weeds only the second look finds, each located within `tol` m.
 
@@ -116,7 +117,8 @@ def test_second_look_bench_weeds_are_found(seed: int, index: int, kind: str, tol
     sand stands only 3.3 soil σ above it in −a*, short of the 8 σ the large-candidate rule asked;
     at that size its colour (gb 0.12, saturation 0.36) is enough. Seed 1 case 1: a small seedling
     under 4 × the minimum component area, so a distractor 63 mm away was answered (VIVID_AREA 4.0
-    until session 13)."""
+    until session 13). Seed 0 case 269: a dull green seedling on pale grey soil, 14 σ above it
+    in −a* but of saturation 0.2899, under LC_SAT: "no_plant" until LC_SAT_PALE."""
     case = make_case(seed, index, CAM, TaskConfig().delta, False)
     assert case.kind == kind
     img = case.scene.render(case.T, CAM)
@@ -134,6 +136,17 @@ def test_olive_straw_on_bench_bare_soil_is_not_a_plant(seed: int, index: int) ->
     bare = set(np.random.default_rng(seed).choice(300, 45, replace=False).tolist())
     assert index in bare
     case = make_case(seed, index, CAM, TaskConfig().delta, True)
+    img = case.scene.render(case.T, CAM)
+    det = detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
+    assert det.reason == "no_plant", det
+
+
+def test_pale_soil_patch_is_not_a_plant() -> None:
+    """A fresh bare-soil scene (perception_failures --seed 7 --bare-share 1.0, case 5) whose
+    second look holds a large soil patch of saturation 0.265, local contrast 4.1 σ and only
+    6.3 σ above the soil in −a*: below LC_SAT it needs LC_SIGMA_PALE (without that margin it
+    was answered as a plant, confidence 0.87)."""
+    case = make_case(7, 5, CAM, TaskConfig().delta, True)
     img = case.scene.render(case.T, CAM)
     det = detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
     assert det.reason == "no_plant", det
