@@ -510,14 +510,15 @@ STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which s
 
 
 def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
-                  lab_index: bool, thr: float, soil: float) -> np.ndarray | None:
-    """`stalks.stalk_centre` for a plant on the stage-2 grid (grid pixel (j, i) ↔ image
-    (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)). It works at the image's own pitch
-    (stalks are 1–3 px wide there; coarser only for plants over stalks.MAX_PX), on a window
-    reaching stalks.MARGIN × the plant's size round it (a clover's centre may lie outside the
-    leaves that stage 1 grouped); the answer is in stage-2 grid pixels."""
+                  lab_index: bool, thr: float, soil: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end) for a plant on the
+    stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
+    It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plants
+    over stalks.MAX_PX), on a window reaching stalks.MARGIN × the plant's size round it (a
+    clover's centre may lie outside the leaves that stage 1 grouped); answers in stage-2 grid
+    pixels."""
     if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
-        return None
+        return None, None
     nh, nw = plant.shape
     H, W = img.shape[:2]
     span = max(nw * kx, nh * ky)  # the stage-2 window in image pixels
@@ -526,7 +527,7 @@ def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant
     xa, ya = max(int(math.floor(X0 - m)), 0), max(int(math.floor(Y0 - m)), 0)
     xb, yb = min(int(math.ceil(X0 + nw * kx + m)), W), min(int(math.ceil(Y0 + nh * ky + m)), H)
     if xb - xa < 16 or yb - ya < 16:
-        return None
+        return None, None
     NW, NH = max(int((xb - xa) / p), 8), max(int((yb - ya) / p), 8)
     region = _resize_down(img[ya:yb, xa:xb], (NW, NH)) if p > 1.0 else img[ya:yb, xa:xb]
     p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
@@ -539,11 +540,14 @@ def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant
     big = cv2.warpAffine(plant.astype(np.uint8), M, (NW, NH), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_CONSTANT) > 0
     leaves = _hysteresis(vi, thr, soil, np.ones(vi.shape, bool)) | big
-    X = stalks.stalk_centre(grey, vi, leaves, big)
-    if X is None:
-        return None
-    x, y = xa + (X[0] + 0.5) * p_x - 0.5, ya + (X[1] + 0.5) * p_y - 0.5  # image pixels
-    return np.array([(x - X0 + 0.5) / kx - 0.5, (y - Y0 + 0.5) / ky - 0.5])
+    def to_stage2(X: np.ndarray | None) -> np.ndarray | None:
+        if X is None:
+            return None
+        x, y = xa + (X[0] + 0.5) * p_x - 0.5, ya + (X[1] + 0.5) * p_y - 0.5  # image pixels
+        return np.array([(x - X0 + 0.5) / kx - 0.5, (y - Y0 + 0.5) / ky - 0.5])
+
+    meet, lone = stalks.stalk_points(grey, vi, leaves, big)
+    return to_stage2(meet), to_stage2(lone)
 
 
 def _mask_box(xs: np.ndarray, ys: np.ndarray, to_full) -> tuple[float, float, float, float]:
@@ -1122,8 +1126,9 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         n_peaks = plant_centre.vote_peaks(votes, size)
     compound = False
     hubs = None
+    lone = None  # the centre end of a lone stalk between two leaf clusters (after compound_centre)
     if uv is None and n_peaks >= STALK_PEAKS:
-        uv = _stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
+        uv, lone = _stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
         if uv is not None:
             method = "stalk_centre"
     if uv is None and n_peaks >= 2:
@@ -1135,6 +1140,10 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         if uv is not None:
             method = "compound_centre"
         compound = compound_leaf.has_compound_leaves(hubs)
+    if uv is None and lone is not None:
+        # one stalk carrying a leaf away from the rest of the plant: its end at the rest (after
+        # compound_centre, exact when its rays agree; before the medians of the parts)
+        uv, method = lone, "lone_stalk"
     if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
         # separate parts round an empty centre (stalks too thin to see): the median of their
         # centroids — after `compound_centre`, which answers exactly for trefoils whose

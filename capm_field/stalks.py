@@ -8,7 +8,8 @@ the soil on both sides. Line strength is measured per pixel (Hessian across the 
 what a step edge explains), and its direction tensor is averaged over a stalk-length
 neighbourhood: along a straight stalk the directions agree, in the soil's texture they do
 not. Straight pieces that leave a leaf and point away from it are stalks, and the plant's
-centre is where ≥ 2 of them point to (`plant_centre.meeting_point`). Measured with
+centre is where ≥ 2 of them point to (`plant_centre.meeting_point`); a lone stalk between two
+leaf clusters gives its end at the larger one (`_bridge_end`). Measured with
 `bench/perception_failures.py` on bench seeds 0–3. Coordinates are (x, y) pixels of the grid the caller passes.
 """
 
@@ -90,8 +91,49 @@ def has_leaf_clusters(plant: np.ndarray) -> bool:
     return int(np.count_nonzero(st[1:, cv2.CC_STAT_AREA] >= CLUSTER * len(xs))) >= 2
 
 
+BRIDGE_RATIO = 2.0  # the leaves on a lone stalk's centre side: ≥ this × those on its other side
+
+
+def _bridge_end(bridges: list, near_leaf: np.ndarray, cl_lab: np.ndarray, cl_stats: np.ndarray) -> np.ndarray | None:
+    """Centre from one lone stalk running between two leaf clusters (no second stalk to meet):
+    a stalk carries one leaf away from the centre, where the rest of the plant's leaves sit, so
+    the centre is the end on whose side the leaves are (all clusters but the one at the other
+    end: ≥ BRIDGE_RATIO × the other side's; a stalk may start under those leaves, so this is its
+    visible end). Stalks between different clusters: None."""
+    if not bridges:
+        return None
+    # `near_leaf` labels each connected part of the leaves' zero-distance set; map it to the
+    # clusters' areas through a pixel of each part
+    def area(k: int) -> int:
+        ys, xs = np.nonzero(near_leaf == k)
+        inside = cl_lab[ys, xs]
+        inside = inside[inside > 0]
+        return int(cl_stats[int(np.bincount(inside).argmax()), cv2.CC_STAT_AREA]) if inside.size else 0
+
+    # (one stalk may come as several pieces: neighbouring direction bands, parallel strips)
+    if len({frozenset((b[2], b[3])) for b in bridges}) > 1:
+        return None  # stalks between different clusters: not one lone stalk
+    e0, e1, k0, k1, _ = max(bridges, key=lambda b: b[4])  # the most line-like piece
+    # the leaves on each end's side: all but the leaf cluster at the other end (the rest of the
+    # plant may be several clusters: small leaves round a stem)
+    total = int(cl_stats[1:, cv2.CC_STAT_AREA].sum())
+    side0, side1 = total - area(k1), total - area(k0)
+    if side0 >= BRIDGE_RATIO * side1:
+        return e0
+    if side1 >= BRIDGE_RATIO * side0:
+        return e1
+    return None
+
+
 def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant: np.ndarray) -> np.ndarray | None:
-    """Where ≥ 2 stalks meet, in grid pixels; or None.
+    """Where ≥ 2 stalks meet, in grid pixels; or None (`stalk_points` without the lone stalk)."""
+    return stalk_points(grey, index, leaves, plant)[0]
+
+
+def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
+                 plant: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(where ≥ 2 stalks meet, the centre end of a lone stalk between two leaf clusters
+    (`_bridge_end`, only when no meeting)), in grid pixels; None for either not found.
 
     grey: float grey image on the grid, reaching ~MARGIN × the plant's size round it; index:
     the vegetation index there (a green stalk on a soil of its brightness); leaves: every
@@ -102,7 +144,7 @@ def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant:
     within the hull of the leaves.
     """
     if not has_leaf_clusters(plant):
-        return None
+        return None, None
     ys, xs = np.nonzero(plant)
     size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
     disc = _disc(size)
@@ -116,23 +158,28 @@ def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant:
     off_leaf = cv2.distanceTransform(1 - lv, cv2.DIST_L2, 3)
     far = off_leaf > 0.25 * size  # soil: the reference for the line strengths
     if np.count_nonzero(far) < 50:
-        return None
+        return None, None
     # lines in the grey image and in the index, each in units of its own soil texture
-    strength, idx, on = None, None, None
+    strength, idx, on, own = None, None, None, None
     for img in (grey, index):
         st_, id_, px = line_strength(img, SEG_LEN * size)
         st_ = st_ / max(float(np.percentile(st_[far], 99)), 1e-6)
-        px_on = px > PX_K * max(float(np.percentile(px[far], 99)), 1e-6)
+        px = px / max(float(np.percentile(px[far], 99)), 1e-6)
         if strength is None:
-            strength, idx, on = st_, id_, px_on
+            strength, idx, on, own = st_, id_, px > PX_K, px
         else:
             idx = np.where(st_ > strength, id_, idx)
             strength = np.maximum(strength, st_)
-            on |= px_on
+            on |= px > PX_K
+            own = np.maximum(own, px)
     free = (off_leaf > 1.5).astype(np.uint8)  # off the leaves' broad parts
     on &= (strength > LINE_K) & (free > 0)
     segs = []
+    bridges = []  # pieces from one leaf cluster to another: (end 0, end 1, cluster at 0, at 1, length / width)
     seen: list[tuple[np.ndarray, np.ndarray]] = []
+    # each pixel's nearest leaf cluster (label of the connected part of `lv` it is closest to)
+    _, near_leaf = cv2.distanceTransformWithLabels(1 - lv, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_CCOMP)
+    n_cl, cl_lab, cl_stats, _ = cv2.connectedComponentsWithStats(lv, connectivity=8)
     h, w = grey.shape
     L = max(5, int(round(SEG_LEN * size)) | 1)
     per_dir = np.bincount(idx[on], minlength=N_DIRS)
@@ -161,7 +208,14 @@ def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant:
             d = evec[:, 1]
             t = (P - m) @ d
             Lp = float(t.max() - t.min()) + 1
-            if Lp < MIN_LEN * size or Lp < 4 * (math.sqrt(12 * max(ev[0], 0)) + 0.5):
+            # its width: the spread across it of its own line strength, which peaks on the line
+            # (the band is as wide as the agreeing strength's smoothing: a strong stalk's band
+            # is wide, or splits into parallel strips)
+            wgt = own[yy, xx] + 1e-6
+            across = (P - m) @ evec[:, 0]
+            mu = float(np.average(across, weights=wgt))
+            wdt = math.sqrt(12 * float(np.average((across - mu) ** 2, weights=wgt))) + 0.5
+            if Lp < MIN_LEN * size or Lp < 4 * wdt:
                 continue
             if float(off_leaf[yy, xx].max()) < AWAY * size + 2:
                 continue  # it runs along a leaf's edge (a leaflet's rim), not away from it
@@ -170,25 +224,30 @@ def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant:
                 continue  # the same piece from the neighbouring direction band
             seen.append((e0, e1))
             d0, d1 = (float(off_leaf[min(int(round(e[1])), h - 1), min(int(round(e[0])), w - 1)]) for e in (e0, e1))
+            if max(d0, d1) <= max(ATTACH * size, 2.0):
+                k0, k1 = (int(near_leaf[min(int(round(e[1])), h - 1), min(int(round(e[0])), w - 1)]) for e in (e0, e1))
+                if k0 != k1:
+                    bridges.append((e0, e1, k0, k1, Lp / wdt))
             # oriented from the leaf it carries towards its free end (the centre's side)
             for leaf_end, free_end, dl in ((e0, e1, d0), (e1, e0, d1)):
                 if dl <= max(ATTACH * size, 2.0):
                     u = (free_end - leaf_end) / max(np.linalg.norm(free_end - leaf_end), 1e-9)
                     segs.append(((leaf_end + free_end) / 2, u, Lp / 2, Lp))
-    if len(segs) < 2:
-        return None
-    X = meeting_point(segs, max(1.5, TOL * size), REACH * size, directed=True)
-    if X is None:
-        return None
-    if not (0 <= X[0] < w and 0 <= X[1] < h):
-        return None
+    X = meeting_point(segs, max(1.5, TOL * size), REACH * size, directed=True) if len(segs) >= 2 else None
+    lone = _bridge_end(bridges, near_leaf, cl_lab, cl_stats) if X is None else None
     off_plant = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3)
-    if off_plant[int(X[1]), int(X[0])] > MAX_BARE * size:
-        return None
-    # leaves sit round their centre: it lies within the hull of the leaves (the plant's and
-    # those its stalks carry), not out where straw or a stone edge crosses a stalk
     ly, lx = np.nonzero(lv)
     hull = cv2.convexHull(np.c_[lx, ly].astype(np.float32))
-    if cv2.pointPolygonTest(hull, (float(X[0]), float(X[1])), True) < -HULL_TOL * size:
-        return None
-    return X
+
+    def plausible(P: np.ndarray | None) -> np.ndarray | None:
+        if P is None or not (0 <= P[0] < w and 0 <= P[1] < h):
+            return None
+        if off_plant[int(P[1]), int(P[0])] > MAX_BARE * size:
+            return None
+        # leaves sit round their centre: it lies within the hull of the leaves (the plant's and
+        # those its stalks carry), not out where straw or a stone edge crosses a stalk
+        if cv2.pointPolygonTest(hull, (float(P[0]), float(P[1])), True) < -HULL_TOL * size:
+            return None
+        return P
+
+    return plausible(X), plausible(lone)

@@ -787,6 +787,41 @@ def test_stalk_centre_declines_a_single_blob_and_lines_outside_the_leaves() -> N
     assert X is not None and math.hypot(X[0] - 114, X[1] - 40) < 6, X
 
 
+def test_lone_stalk_centre_is_its_end_at_the_rest_of_the_plant() -> None:
+    """One stalk between a lone leaf and the rest of the plant (three overlapping leaves), no
+    second stalk to meet: the centre is the stalk's end at the larger cluster (bench seed 3 case
+    27, a clover: 22.3 → 1.6 mm). With the two clusters of equal size there is no answer, nor
+    when the leaf it carries outweighs only the cluster it reaches (not the rest), and a second
+    stalk to another cluster makes it no lone stalk."""
+    from capm_field.stalks import stalk_points
+
+    def scene(rest: tuple, lone_r: int, extra: bool = False):
+        rng = np.random.default_rng(5)
+        g = (0.5 + 0.02 * rng.standard_normal((320, 320))).astype(np.float32)
+        lv = np.zeros((320, 320), np.uint8)
+        for c, r in rest:
+            cv2.circle(lv, c, r, 1, -1)
+        cv2.circle(lv, (100, 100), lone_r, 1, -1)
+        cv2.line(g, (100 + lone_r - 3, 100 + lone_r - 3), (172, 172), 0.3, 1, cv2.LINE_AA)
+        if extra:  # a second lone leaf on its own stalk
+            cv2.circle(lv, (100, 240), 12, 1, -1)
+            cv2.line(g, (111, 235), (166, 201), 0.3, 1, cv2.LINE_AA)
+        return g, lv > 0
+
+    mass = (((190, 190), 25), ((215, 170), 20), ((210, 220), 18))
+    g, lv = scene(mass, 12)
+    meet, lone = stalk_points(g, np.zeros_like(g), lv, lv)
+    assert meet is None and lone is not None and math.hypot(lone[0] - 172, lone[1] - 172) < 4, lone
+    g, lv = scene((((190, 190), 14),), 14)
+    assert stalk_points(g, np.zeros_like(g), lv, lv)[1] is None
+    g, lv = scene(mass, 12, extra=True)
+    assert stalk_points(g, np.zeros_like(g), lv, lv)[1] is None
+    # a big old leaf on its stalk, small separate leaves round the stem (photo-like amaranth):
+    # its cluster outweighs the one the stalk reaches, not the rest of the plant: no answer
+    g, lv = scene((((186, 186), 12), ((210, 160), 12), ((214, 214), 12)), 22)
+    assert stalk_points(g, np.zeros_like(g), lv, lv)[1] is None
+
+
 def test_blue_green_leaves_are_plants() -> None:
     """Glaucous, blue-green leaves (RGB ≈ 56, 112, 94: green far above red, barely above blue)
     on red, sandy, brown and grey soils are found (the green-over-blue test alone said
