@@ -24,6 +24,7 @@ and the reasons behind each threshold: docs/perception.md.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -106,6 +107,11 @@ class Roi:
 
     def params(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(centre (2,), semi-axes (2,), angle of the first axis in degrees)."""
+        return self._params
+
+    @functools.cached_property
+    def _params(self) -> tuple[np.ndarray, np.ndarray, float]:
+        # computed once per Roi (the detector asks ~8 times a frame; the conic is not changed)
         M = self.conic[:2, :2]
         c = -np.linalg.solve(M, self.conic[:2, 2])
         k = -(np.r_[c, 1.0] @ self.conic @ np.r_[c, 1.0])
@@ -827,17 +833,22 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
         elong = float(math.sqrt(ev[1] / ev[0]))
     else:
         elong = 1.0
+    ps, rs, rmax = pc.sum(1) + 30, raw.sum(1) + 30, raw.max(1)
+    # the six colour medians in one call (one partition per row instead of six calls)
+    med = np.median(np.stack([(pc[:, 1] - pc[:, 0]) / ps, (pc[:, 1] - pc[:, 2]) / ps, (mx - mn) / (mx + 1),
+                              (raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / rs, (rmax - raw.min(1)) / (rmax + 1),
+                              (raw[:, 1] - 0.5 * (raw[:, 0] + raw[:, 2])) / rs]), axis=1)
     return dict(
         elong=elong,
         area=float(len(v)),
         g_p90=g90,
         gsig=(g90 - soil) / sig,
-        gb=float(np.median((pc[:, 1] - pc[:, 0]) / (pc.sum(1) + 30))),
-        gr=float(np.median((pc[:, 1] - pc[:, 2]) / (pc.sum(1) + 30))),
-        sat=float(np.median((mx - mn) / (mx + 1))),
-        g_raw=float(np.median((raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / (raw.sum(1) + 30))),
-        sat_raw=float(np.median((raw.max(1) - raw.min(1)) / (raw.max(1) + 1))),
-        gm_raw=float(np.median((raw[:, 1] - 0.5 * (raw[:, 0] + raw[:, 2])) / (raw.sum(1) + 30))),
+        gb=float(med[0]),
+        gr=float(med[1]),
+        sat=float(med[2]),
+        g_raw=float(med[3]),
+        sat_raw=float(med[4]),
+        gm_raw=float(med[5]),
         mass=float(np.sum(v - soil)),
         d=math.hypot(xs.mean() - cen[0], ys.mean() - cen[1]) / rad,
     )
