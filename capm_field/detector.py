@@ -755,13 +755,12 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
     now keeps bare soil empty).
     """
     v = v.ravel()
-    med, p90 = (float(x) for x in np.percentile(v, [50, 90]))
+    lo, med, p90, hi = (float(x) for x in np.percentile(v, [0.5, 50, 90, 99.5]))  # one partition
     sig = max((p90 - med) / 1.28, 0.004)
     if p90 > med:
         # a plant filling ≥ a tenth of the window (a close-up, a photo without a ROI) puts the
         # 90th percentile, or the median, on leaves: then the soil is the lower class of a
         # two-class (Otsu) split of the index, when the upper one is green and far above it
-        lo, hi = (float(x) for x in np.percentile(v, [0.5, 99.5]))
         if hi > lo:
             q = np.clip((v - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
             t, _ = cv2.threshold(q.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
