@@ -9,7 +9,7 @@ what a step edge explains), and its direction tensor is averaged over a stalk-le
 neighbourhood: along a straight stalk the directions agree, in the soil's texture they do
 not. Straight pieces that leave a leaf and point away from it are stalks, and the plant's
 centre is where ≥ 2 of them point to (`plant_centre.meeting_point`); a lone stalk between two
-leaf clusters gives its end at the larger one (`_bridge_end`). Measured with
+leaf clusters gives its end on the side of the rest of the plant (`_bridge_end`). Measured with
 `bench/perception_failures.py` on bench seeds 0–3. Coordinates are (x, y) pixels of the grid the caller passes.
 """
 
@@ -94,30 +94,26 @@ def has_leaf_clusters(plant: np.ndarray) -> bool:
 BRIDGE_RATIO = 2.0  # the leaves on a lone stalk's centre side: ≥ this × those on its other side
 
 
-def _bridge_end(bridges: list, near_leaf: np.ndarray, cl_lab: np.ndarray, cl_stats: np.ndarray) -> np.ndarray | None:
+def _bridge_end(bridges: list, lv: np.ndarray) -> np.ndarray | None:
     """Centre from one lone stalk running between two leaf clusters (no second stalk to meet):
     a stalk carries one leaf away from the centre, where the rest of the plant's leaves sit, so
     the centre is the end on whose side the leaves are (all clusters but the one at the other
     end: ≥ BRIDGE_RATIO × the other side's; a stalk may start under those leaves, so this is its
-    visible end). Stalks between different clusters: None."""
+    visible end). `bridges`: (end 0, end 1, length / width) of pieces whose both ends are near
+    leaves; stalks between different pairs of clusters: None."""
     if not bridges:
         return None
-    # `near_leaf` labels each connected part of the leaves' zero-distance set; map it to the
-    # clusters' areas through a pixel of each part
-    def area(k: int) -> int:
-        ys, xs = np.nonzero(near_leaf == k)
-        inside = cl_lab[ys, xs]
-        inside = inside[inside > 0]
-        return int(cl_stats[int(np.bincount(inside).argmax()), cv2.CC_STAT_AREA]) if inside.size else 0
-
+    # each pixel's nearest leaf cluster (`lv`'s connected parts), and each cluster's area
+    _, near = cv2.distanceTransformWithLabels(1 - lv, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_CCOMP)
+    area = np.bincount(near[lv > 0])
+    ends = [(e0, e1, _at(near, e0), _at(near, e1), q) for e0, e1, q in bridges]
+    ends = [b for b in ends if b[2] != b[3]]
     # (one stalk may come as several pieces: neighbouring direction bands, parallel strips)
-    if len({frozenset((b[2], b[3])) for b in bridges}) > 1:
-        return None  # stalks between different clusters: not one lone stalk
-    e0, e1, k0, k1, _ = max(bridges, key=lambda b: b[4])  # the most line-like piece
-    # the leaves on each end's side: all but the leaf cluster at the other end (the rest of the
-    # plant may be several clusters: small leaves round a stem)
-    total = int(cl_stats[1:, cv2.CC_STAT_AREA].sum())
-    side0, side1 = total - area(k1), total - area(k0)
+    if not ends or len({frozenset((b[2], b[3])) for b in ends}) > 1:
+        return None
+    e0, e1, k0, k1, _ = max(ends, key=lambda b: b[4])  # the most line-like piece
+    total = int(area.sum())
+    side0, side1 = total - int(area[k1]), total - int(area[k0])
     if side0 >= BRIDGE_RATIO * side1:
         return e0
     if side1 >= BRIDGE_RATIO * side0:
@@ -125,9 +121,10 @@ def _bridge_end(bridges: list, near_leaf: np.ndarray, cl_lab: np.ndarray, cl_sta
     return None
 
 
-def stalk_centre(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant: np.ndarray) -> np.ndarray | None:
-    """Where ≥ 2 stalks meet, in grid pixels; or None (`stalk_points` without the lone stalk)."""
-    return stalk_points(grey, index, leaves, plant)[0]
+def _at(img: np.ndarray, e: np.ndarray):
+    """`img` at the grid pixel nearest to point e (x, y), clamped to the grid."""
+    h, w = img.shape
+    return img[min(max(int(round(e[1])), 0), h - 1), min(max(int(round(e[0])), 0), w - 1)]
 
 
 def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
@@ -175,11 +172,8 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     free = (off_leaf > 1.5).astype(np.uint8)  # off the leaves' broad parts
     on &= (strength > LINE_K) & (free > 0)
     segs = []
-    bridges = []  # pieces from one leaf cluster to another: (end 0, end 1, cluster at 0, at 1, length / width)
+    bridges = []  # pieces with both ends near leaves: (end 0, end 1, length / width)
     seen: list[tuple[np.ndarray, np.ndarray]] = []
-    # each pixel's nearest leaf cluster (label of the connected part of `lv` it is closest to)
-    _, near_leaf = cv2.distanceTransformWithLabels(1 - lv, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_CCOMP)
-    n_cl, cl_lab, cl_stats, _ = cv2.connectedComponentsWithStats(lv, connectivity=8)
     h, w = grey.shape
     L = max(5, int(round(SEG_LEN * size)) | 1)
     per_dir = np.bincount(idx[on], minlength=N_DIRS)
@@ -223,18 +217,16 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
             if any(np.linalg.norm(e0 - a) < 2 and np.linalg.norm(e1 - b) < 2 for a, b in seen):
                 continue  # the same piece from the neighbouring direction band
             seen.append((e0, e1))
-            d0, d1 = (float(off_leaf[min(int(round(e[1])), h - 1), min(int(round(e[0])), w - 1)]) for e in (e0, e1))
+            d0, d1 = float(_at(off_leaf, e0)), float(_at(off_leaf, e1))
             if max(d0, d1) <= max(ATTACH * size, 2.0):
-                k0, k1 = (int(near_leaf[min(int(round(e[1])), h - 1), min(int(round(e[0])), w - 1)]) for e in (e0, e1))
-                if k0 != k1:
-                    bridges.append((e0, e1, k0, k1, Lp / wdt))
+                bridges.append((e0, e1, Lp / wdt))
             # oriented from the leaf it carries towards its free end (the centre's side)
             for leaf_end, free_end, dl in ((e0, e1, d0), (e1, e0, d1)):
                 if dl <= max(ATTACH * size, 2.0):
                     u = (free_end - leaf_end) / max(np.linalg.norm(free_end - leaf_end), 1e-9)
                     segs.append(((leaf_end + free_end) / 2, u, Lp / 2, Lp))
     X = meeting_point(segs, max(1.5, TOL * size), REACH * size, directed=True) if len(segs) >= 2 else None
-    lone = _bridge_end(bridges, near_leaf, cl_lab, cl_stats) if X is None else None
+    lone = _bridge_end(bridges, lv) if X is None else None
     off_plant = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3)
     ly, lx = np.nonzero(lv)
     hull = cv2.convexHull(np.c_[lx, ly].astype(np.float32))
