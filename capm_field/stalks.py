@@ -227,6 +227,8 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
                     segs.append(((leaf_end + free_end) / 2, u, Lp / 2, Lp))
     X = meeting_point(segs, max(1.5, TOL * size), REACH * size, directed=True) if len(segs) >= 2 else None
     lone = _bridge_end(bridges, lv) if X is None else None
+    if X is None and lone is None:
+        return None, None  # (most calls: no plausibility maps needed)
     off_plant = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3)
     ly, lx = np.nonzero(lv)
     hull = cv2.convexHull(np.c_[lx, ly].astype(np.float32))
