@@ -956,7 +956,8 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
     Measured on the bench candidates (bench/perception_candidates.py, docs/perception.md):
     live leaves have gb ≥ 0.07 and saturation ≥ 0.2 after white balance, and either a clear
     absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
-    Grey-green (dull), glaucous and blue-green (teal) leaves have rules of their own. Any
+    Grey-green (dull), glaucous and blue-green (teal) leaves have rules of their own, and so has
+    a large candidate green above red and blue before and after the white balance (both looks). Any
     candidate must be greener than magenta before the white balance (gm_raw ≥ GM_RAW_MIN). The second look
     (`vivid`, −a*) takes vivid colours, teal leaves, large coloured candidates
     (`_large_and_coloured`), compact ones that stand out from the soil round them (`_stands_out`)
@@ -966,6 +967,11 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
         # not greener than magenta in the camera's own colours: a grey stone (or anything
         # neutral) that the white balance on a purplish or red soil made look green
         return False
+    if f["area_frac"] >= RAW_GREEN_FRAC and min(f["g_raw"], f["gr"], f["gb"]) >= RAW_GREEN and f["sat_raw"] >= RAW_GREEN_SAT_RAW:
+        # large and green above both red and blue, in the camera's own colours and after the
+        # white balance alike: a leaf, however wide the soil's spread (a two-tone soil puts σ so
+        # high that a grass clearly above it stands only 4 σ out)
+        return True
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not _large_and_coloured(f) and not _stands_out(f):
         if _raw_blue_green(f):
@@ -998,6 +1004,10 @@ def _plant_like(f: dict, vivid: bool = False) -> bool:
 
 
 DULL_GB, DULL_GR, DULL_SAT, DULL_RAW = 0.02, 0.03, 0.15, 0.02
+RAW_GREEN, RAW_GREEN_FRAC, RAW_GREEN_SAT_RAW = 0.04, 0.003, 0.23  # (session 16: bench seeds 0–3 +1 found, −1
+# wrong, nothing else moved; no bare-soil component of either look on seeds 0–3 and 200 fresh bare scenes reaches
+# 0.04 in all three; stones under bench/stones_on_soils.py's green cast do, with sat_raw 0.20–0.21: 31 → 39 of 384
+# at sat_raw ≥ 0.20, 31 at 0.23; other renderer, photo-like: unchanged)
 GM_RAW_MIN = 0.009  # bench weeds measured ≥ 0.017 (1 % ≤ 0.032), a bluish grass of another renderer 0.010,
 # neutral stones ≤ 0.007 (bench/stones_on_soils.py, 12 soils × 8 greys × 4 casts: plant answers
 # 44 → 31 of 384; 20 of the rest under a green cast, which makes the stones green in the raw image too)

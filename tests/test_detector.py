@@ -1011,6 +1011,28 @@ def test_glaucous_rule_takes_coloured_leaves_not_neutral_stones() -> None:
     assert not _plant_like(leaf, vivid=True)  # the second look keeps its own, vivid-only rules
 
 
+def test_large_raw_green_rule_takes_leaves_on_two_tone_soil_not_stones_under_a_green_cast() -> None:
+    """A large candidate green above red and blue before and after the white balance is a plant
+    at any soil σ: bench seed 2 case 54 (grass on a soil half brown, half grey: 4 σ out, gb just
+    under the base rule's 0.07) and seed 3 case 38 (grass, second look) are found near their
+    centre. A grey stone under a green cast (bench/stones_on_soils.py, sat_raw ≤ 0.21) and a
+    speck of the grass's colour are not taken by this rule."""
+    from capm_field.detector import _plant_like
+
+    grass = dict(area=773.0, area_frac=0.0099, gb=0.069, gr=0.072, sat=0.224, sat_raw=0.284, g_raw=0.073,
+                 gm_raw=0.087, gsig=3.99, g_p90=0.0895, elong=1.13, d=0.3)
+    assert _plant_like(grass) and _plant_like(grass, vivid=True)
+    stone = dict(grass, area_frac=0.0062, gb=0.058, gr=0.040, sat=0.167, sat_raw=0.202, g_raw=0.048, gm_raw=0.060, gsig=8.3)
+    assert not _plant_like(stone) and not _plant_like(stone, vivid=True)
+    assert not _plant_like(dict(grass, sat_raw=0.21))
+    assert not _plant_like(dict(grass, area_frac=0.001))  # a speck needs the other rules
+    for seed, i in ((2, 54), (3, 38)):
+        case = make_case(seed, i, CAM, TaskConfig().delta, bare=False)
+        det = detect_centre(case.scene.render(case.T, CAM), roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
+        assert det.reason is None, (seed, i, det)
+        assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.015, (seed, i, det)
+
+
 def test_pale_seedling_found_by_local_contrast_while_yellow_soil_tints_are_not() -> None:
     """Second look, colour band where pale seedlings and soil tints overlap (gb 0.085–0.15, sat
     0.29–0.42): bench seed 3 case 233, a yellow-green seedling missed by both colour rules, is a
