@@ -301,10 +301,15 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     std = float(cv2.meanStdDev(small)[1].max())
     b_, g_, r_ = cv2.split(small)
     sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= 250)) / gray.size  # clipped to white
-    if mean < 12 or sat > 0.6 or std < 1.5 or mean > 245:
+    # (flat: also no pixel off by FLAT_RANGE, which a plant of a few grid pixels is, however small)
+    flat = std < 1.5 and int(np.ptp(small.reshape(-1, 3), axis=0).max()) < FLAT_RANGE
+    if mean < 12 or sat > 0.6 or flat or mean > 245:
         return bad
-    if _coherence(mid) < NOISE_COHERENCE:
-        return bad  # noise, not a scene (a faulty sensor or a corrupted stream): max-pooled, it looks green
+    if _coherence(mid) < NOISE_COHERENCE and _pixel_noise(crop) >= NOISE_SIGMA:
+        # strong noise, not a scene (a faulty sensor or a corrupted stream): max-pooled, it looks
+        # green. Weak noise on a flat soil has no structure either, but a leaf as bright as the
+        # soil is structure in colour only: such a frame is read, not rejected
+        return bad
 
     inside = np.ones(gray.shape, bool)
     if roi is not None:
@@ -315,7 +320,20 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     return _Window(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside))
 
 
+FLAT_RANGE = 16  # grey levels: a blank frame under sensor noise σ ≤ 5 stays within it on the stage-1 grid
 NOISE_COHERENCE = 0.65  # measured: bench, photo-like and other-renderer frames ≥ 0.87; RGB noise ≤ 0.56
+NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise`) from which an incoherent frame is noise:
+# uniform RGB noise ≈ 50 (JPEG-compressed ≈ 51–54), Gaussian σ = 40 per channel ≈ 27, a flat soil under σ = 30 ≈ 20
+
+
+def _pixel_noise(bgr: np.ndarray) -> float:
+    """Pixel-scale noise σ of the grey level, in grey levels, from the mean absolute difference of
+    horizontal neighbours on every 8th row (σ = E|d|·√π / 2 for Gaussian noise). Asked only of
+    frames without structure, where the scene's edges add little."""
+    g = cv2.cvtColor(np.ascontiguousarray(bgr[::8]), cv2.COLOR_BGR2GRAY).astype(np.int16)
+    if g.shape[1] < 2:
+        return 0.0
+    return float(np.abs(np.diff(g, axis=1)).mean()) * math.sqrt(math.pi) / 2.0
 
 
 def _coherence(bgr: np.ndarray) -> float:

@@ -395,6 +395,43 @@ def test_a_frame_of_noise_is_a_bad_image_not_a_plant(shape) -> None:
     assert detect_centre((rng.random((*shape, 3)) * 255).astype(np.uint8)).reason == "bad_image"
 
 
+@pytest.mark.parametrize("kind", ["jpeg", "gauss40", "binary", "grey"])
+def test_other_noise_frames_are_bad_images(kind: str) -> None:
+    """JPEG-compressed RGB noise, Gaussian noise of σ = 40 round mid-grey, black-and-white
+    noise and grey-level noise: strong noise without structure, "bad_image"."""
+    rng = np.random.default_rng(5)
+    u = (rng.random((480, 640, 3)) * 255).astype(np.uint8)
+    img = {"jpeg": lambda: cv2.imdecode(cv2.imencode(".jpg", u, [cv2.IMWRITE_JPEG_QUALITY, 75])[1], cv2.IMREAD_COLOR),
+           "gauss40": lambda: np.clip(128 + rng.normal(0, 40, u.shape), 0, 255).astype(np.uint8),
+           "binary": lambda: np.repeat(np.where(rng.random((480, 640, 1)) < 0.5, 0, 255).astype(np.uint8), 3, axis=2),
+           "grey": lambda: np.repeat(u[..., :1], 3, axis=2)}[kind]()
+    assert detect_centre(img).reason == "bad_image"
+
+
+@pytest.mark.parametrize("soil", [(110, 110, 110), (40, 70, 110)])
+@pytest.mark.parametrize("noise", [0, 5, 20])
+@pytest.mark.parametrize("leaf_len", [10, 40])
+def test_plant_on_a_flat_soil_under_noise_is_read_not_rejected(soil, noise: int, leaf_len: int) -> None:
+    """A rosette drawn on a flat soil (a simple renderer) under Gaussian sensor noise: on grey
+    soil its leaves are as bright as the soil, so the grey level is noise alone, and a 10-px-leaf
+    rosette barely moves the stage-1 grid. Both were "bad_image" (noise, flat frame) while only
+    the grey level's coherence and spread were asked; the plant is found within a quarter of its
+    size (≥ 8 px). The blank frame: "bad_image" under weak noise, "no_plant" under strong."""
+    rng = np.random.default_rng([noise, leaf_len])
+    img = np.zeros((720, 1280, 3), np.float32) + np.array(soil, np.float32)
+    cx, cy = 610.0, 380.0
+    for k in range(5):
+        a = 2 * math.pi * k / 5 + 0.4
+        cv2.ellipse(img, (int(cx + 0.55 * leaf_len * math.cos(a)), int(cy + 0.55 * leaf_len * math.sin(a))),
+                    (leaf_len // 2, max(2, leaf_len // 6)), math.degrees(a), 0, 360, (30, 160, 60), -1, cv2.LINE_AA)
+    img = np.clip(img + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
+    det = detect_centre(img)
+    assert det.reason is None, det
+    assert math.hypot(det.pixel[0] - cx, det.pixel[1] - cy) < max(0.25 * 2.1 * leaf_len, 8.0), det  # ¼ of the plant
+    blank = np.clip(np.zeros((720, 1280, 3)) + soil + rng.normal(0, noise, (720, 1280, 3)), 0, 255).astype(np.uint8)
+    assert detect_centre(blank).reason in (("bad_image",) if noise <= 5 else ("no_plant",))
+
+
 def test_heavy_sensor_noise_on_a_scene_is_still_read() -> None:
     """Gaussian noise σ = 20 grey levels on a bench rosette view: still a scene, still the weed."""
     case = make_case(11, 0, CAM, 0.1, bare=False)  # index 0: a rosette
