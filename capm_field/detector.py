@@ -432,7 +432,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
                 f["lc"], f["core"] = _local_contrast(img, gm[by:gy.max() + 1, bx:gx.max() + 1], (bx, by), win, gains, thr, soil_level)
         f["area_frac"] = f["area"] / n_in
         box = None  # full-image box of a candidate with a positive score, for "contenders"
-        f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and _plant_like(f, vivid) and f["elong"] <= STRAW_ELONG)
+        f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and _plant_like(f, vivid)
+                       and (f["elong"] <= STRAW_ELONG or _green_blade(f)))
         if f["ok"]:
             # green mass measured at full resolution (the stage-1 max-pooling inflates small
             # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
@@ -452,7 +453,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             cut = bool(np.any(gm & rim))
             f["score"] = f["mass_full"] * math.exp(-0.5 * (f["d"] / CENTRAL_SIGMA) ** 2) * (0.33 if cut else 1.0)
             # a straight thin piece at full resolution is straw, not a weed (measured: weeds ≤ 4.5)
-            if f["elong_full"] > STRAW_ELONG_FULL:
+            if f["elong_full"] > STRAW_ELONG_FULL and not _green_blade(f):
                 f["score"] = 0.0
             # the TROI holds the weed's centre (the margin is for overhanging leaves only)
             if roi is not None and not roi.contains(to_full(np.array([xs.mean(), ys.mean()]))[None], 1.0)[0]:
@@ -814,7 +815,15 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
     return np.take(keep, lab)  # = keep[lab], ~2× faster than fancy indexing
 
 
-STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5
+def _green_blade(f: dict) -> bool:
+    """A long straight candidate that is no straw: green above red in the camera's own colours
+    and after the white balance (a single grass blade, two cotyledons in a line: elongation 5–6
+    at full resolution). Bench straw and other long non-weed pieces: min(g_raw, gr) ≤ 0.044."""
+    return min(f["g_raw"], f["gr"]) >= BLADE_GREEN
+
+
+BLADE_GREEN = 0.06
+STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5 (but see `_green_blade`)
 STRAW_ELONG = 6.5  # same on the stage-1 grid (weeds measured ≤ 5.9 but one merged with straw)
 STRAW_RAW = -0.012  # g_raw below which a long straight piece is straw (measured: straw −0.04 … −0.010, olive
 # grass blades ≥ −0.005; bench seeds 0–3, plant-like pieces of elongation > STRAW_ELONG: the weed's own ≥ −0.0098,
@@ -1187,12 +1196,15 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         # centroids — after `compound_centre`, which answers exactly for trefoils whose
         # middle leaflets point away from the centre (first, it took 13 of 24 stalkless
         # other-renderer clovers at 0.2–0.4 R off; after: those went to `compound_centre`)
-        uv = plant_centre.component_median(plant)
+        uv, method = plant_centre.component_median(plant), "component_median"
+        if uv is None:
+            # two parts (two leaves, stem unseen): where they are closest
+            uv, method = plant_centre.pair_gap(plant), "pair_gap"
         if uv is not None:
             parts = parts or plant_centre.broad_parts(plant)
             uv = uv if plant_centre.within_broad_hull(uv, parts) else None
-        if uv is not None:
-            method = "component_median"
+        if uv is None:
+            method = None
     scattered = bool(plant_centre.SCATTER_PEAKS) and n_peaks >= plant_centre.SCATTER_PEAKS
     gmed = None  # the plant's geometric median: made when first needed
     if uv is None and not compound and (scattered or n_peaks >= leaf_axes.MIN_PEAKS and roundness >= leaf_axes.MIN_ROUND) \

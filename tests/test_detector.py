@@ -432,6 +432,57 @@ def test_plant_on_a_flat_soil_under_noise_is_read_not_rejected(soil, noise: int,
     assert detect_centre(blank).reason in (("bad_image",) if noise <= 5 else ("no_plant",))
 
 
+def test_long_green_plants_are_not_straw() -> None:
+    """Two narrow cotyledons in a line (elongation 5.4 at full resolution) and a single grass
+    blade were scored 0 as straw by their shape alone; green above red in the raw image and
+    after the white balance, they are plants. A straw of the same shape is not."""
+    rng = np.random.default_rng(3)
+    soil = np.clip(cv2.GaussianBlur(rng.normal(0, 10, (720, 1280, 3)), (0, 0), 3) + (50, 80, 120), 0, 255)
+    for shape, colour, plant in (("cotyledons", (40, 160, 70), True), ("blade", (40, 150, 80), True), ("blade", (120, 190, 210), False)):
+        img = soil.copy()
+        if shape == "cotyledons":
+            for s in (-1, 1):
+                cv2.ellipse(img, (int(640 + s * 33), 360), (31, 11), 0, 0, 360, colour, -1, cv2.LINE_AA)
+        else:
+            cv2.line(img, (560, 360), (720, 330), colour, 5, cv2.LINE_AA)
+        det = detect_centre(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8),
+                            Roi.from_ellipse((640, 350), (150, 150)))
+        assert (det.reason is None) == plant, (shape, colour, det)
+        if shape == "cotyledons":
+            assert math.hypot(det.pixel[0] - 640, det.pixel[1] - 360) < 12, det
+
+
+def test_two_leaves_whose_stem_does_not_show_meet_in_the_gap() -> None:
+    """`pair_gap`: two separate elongated leaves (cotyledons on an unseen hypocotyl) → the middle
+    of the gap where they are closest; the pixels' median landed in the bigger leaf, 7–17 px off
+    on 130-px seedlings. Lobed or round parts (two clover trefoils) → None. End to end: a
+    seedling of two unequal separate cotyledons is found within 6 px of the gap."""
+    from capm_field.plant_centre import pair_gap
+
+    m = np.zeros((80, 120), np.uint8)
+    cv2.ellipse(m, (38, 40), (26, 10), 10, 0, 360, 1, -1)
+    cv2.ellipse(m, (88, 44), (18, 8), 10, 0, 360, 1, -1)
+    gap = pair_gap(m.astype(bool))
+    assert gap is not None and abs(gap[0] - 64.5) < 3 and abs(gap[1] - 42) < 3, gap
+    lobed = np.zeros((80, 120), np.uint8)
+    for cx in (30, 85):
+        for a in (0, 120, 240):
+            cv2.circle(lobed, (int(cx + 9 * math.cos(math.radians(a))), int(40 + 9 * math.sin(math.radians(a)))), 9, 1, -1)
+    assert pair_gap(lobed.astype(bool)) is None
+    round_ = np.zeros((80, 120), np.uint8)
+    cv2.circle(round_, (30, 40), 15, 1, -1)
+    cv2.circle(round_, (80, 40), 12, 1, -1)
+    assert pair_gap(round_.astype(bool)) is None
+    img = np.zeros((720, 1280, 3), np.float32) + (40, 70, 110)
+    cv2.ellipse(img, (598, 352), (33, 15), 10, 0, 360, (30, 160, 60), -1, cv2.LINE_AA)
+    cv2.ellipse(img, (672, 365), (24, 13), 10, 0, 360, (30, 160, 60), -1, cv2.LINE_AA)
+    img = np.clip(img + np.random.default_rng(0).normal(0, 2, img.shape), 0, 255).astype(np.uint8)
+    dbg: dict = {}
+    det = detect_centre(img, debug=dbg)
+    assert det.reason is None and dbg["method"] == "pair_gap", (det, dbg.get("method"))
+    assert math.hypot(det.pixel[0] - 639.5, det.pixel[1] - 359.3) < 5, det  # between the tips (630.5, 357.7), (648.4, 360.8)
+
+
 def test_heavy_sensor_noise_on_a_scene_is_still_read() -> None:
     """Gaussian noise σ = 20 grey levels on a bench rosette view: still a scene, still the weed."""
     case = make_case(11, 0, CAM, 0.1, bare=False)  # index 0: a rosette
