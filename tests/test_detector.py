@@ -9,6 +9,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
@@ -1138,3 +1141,31 @@ def test_pale_seedling_found_by_local_contrast_while_yellow_soil_tints_are_not()
             assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.008
         else:
             assert det.reason == "no_plant", det
+
+
+@settings(max_examples=300, deadline=None)
+@given(v=hnp.arrays(np.float32, st.integers(1, 400), elements=st.floats(-1.0, 1.0, width=32)),
+       q=st.sampled_from([0.5, 10.0, 50.0, 90.0, 99.5, 100.0]))
+def test_fast_order_statistics_equal_numpy(v, q) -> None:
+    """The detector's one-partition percentiles and medians give numpy's values bit for bit (the
+    bench answers must not move when they replace np.percentile / np.median)."""
+    from capm_field.detector import _median, _percentile, _row_medians
+
+    assert _percentile(v, q) == float(np.percentile(v, q))
+    assert _percentile(v, (q, 50.0)) == tuple(float(x) for x in np.percentile(v, [q, 50.0]))
+    assert _median(v) == float(np.median(v))
+    rows = np.stack([v, v[::-1] * 2])
+    assert np.array_equal(_row_medians(rows), np.median(rows, axis=1))
+
+
+def test_closed_form_elongation_matches_the_covariance_eigenvalues() -> None:
+    """`_elongation` (2 × 2 eigenvalues in closed form) equals √(λ1/λ2) of np.cov + ¼ px² to 1e-9."""
+    from capm_field.detector import _elongation
+
+    rng = np.random.default_rng(0)
+    for n in (2, 3, 10, 200, 5000):
+        xs = rng.integers(0, 300, n)
+        ys = (0.3 * xs + rng.integers(0, 40, n)).astype(np.int64)
+        ev = np.linalg.eigvalsh(np.cov(np.c_[xs, ys].T.astype(float)) + 0.25 * np.eye(2))
+        assert math.isclose(_elongation(xs, ys), math.sqrt(ev[1] / ev[0]), rel_tol=1e-9)
+    assert math.isclose(_elongation(np.arange(50), np.zeros(50, np.int64)), math.sqrt((np.var(np.arange(50), ddof=1) + 0.25) / 0.25))
