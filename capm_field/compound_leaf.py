@@ -14,6 +14,7 @@ import math
 import cv2
 import numpy as np
 
+from .order_stats import percentile
 from .plant_centre import geometric_median
 
 RING = (0.35, 1.0)  # ring radii × SCALE × plant size (about a leaflet's length)
@@ -56,7 +57,7 @@ def compound_hubs(plant: np.ndarray, vi: np.ndarray, soil: float, size: float):
     """Hub candidates: points round which the green index forms three lobes (3-fold harmonic
     of the index on a ring, strong and dominating the 1- and 2-fold ones, so leaf edges, blade
     ends and straight blades do not qualify). Returns (points (n, 2), weights, lobe phase)."""
-    top = float(np.percentile(vi[plant], 90))
+    top = percentile(vi[plant], 90)
     f = np.clip((vi - soil) / (top - soil + 1e-6), 0, 1).astype(np.float32)
     r2 = SCALE * size
     ks, area = _ring_kernels(RING[0] * r2, r2)

@@ -35,6 +35,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import compound_leaf, leaf_axes, plant_centre, stalks
+from .order_stats import elongation, median, percentile, row_medians
 from .camera import PinholeCamera
 
 log = logging.getLogger(__name__)
@@ -380,7 +381,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
         return Detection(None, 0.0, "no_plant")
     # soil spread of the index outside the vegetation mask (robust: median → p90)
     soil_px = vi[::2, ::2][(inside & ~mask)[::2, ::2]] if n_in >= 4096 else vi[inside & ~mask]
-    sig = max((_percentile(soil_px, 90) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
+    sig = max((percentile(soil_px, 90) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
     # ROI centre and radius on the stage-1 grid (candidate centrality)
     if roi is not None:
         rc, rax, _ = roi.params()
@@ -446,7 +447,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             f["mass_full"] = float(np.count_nonzero(mf)) / (sx * sy)
             yy, xx = np.nonzero(mf)
             if len(xx) >= 3:
-                f["elong_full"] = _elongation(xx, yy)
+                f["elong_full"] = elongation(xx, yy)
             else:
                 f["elong_full"] = 1.0
             cut = bool(np.any(gm & rim))
@@ -599,8 +600,8 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
     px = np.ascontiguousarray(sub).reshape(-1, 3)
     f = (px if inside is None else px.take(np.flatnonzero(inside[::k, ::k]), axis=0)).astype(np.float32)
     gs = greenness(f[None])[0]
-    soil = f.take(np.flatnonzero(gs <= _median(gs)), axis=0)
-    ref = _row_medians(np.ascontiguousarray(soil.T)) + 1.0
+    soil = f.take(np.flatnonzero(gs <= median(gs)), axis=0)
+    ref = row_medians(np.ascontiguousarray(soil.T)) + 1.0
     g = SOIL_REF / (ref / ref.sum())
     return np.clip((g / g[1]) ** WB_STRENGTH, GAIN_MIN, GAIN_MAX).astype(np.float32)
 
@@ -773,7 +774,7 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
     now keeps bare soil empty).
     """
     v = v.ravel()
-    lo, med, p90, hi = _percentile(v, (0.5, 50, 90, 99.5))  # one partition
+    lo, med, p90, hi = percentile(v, (0.5, 50, 90, 99.5))  # one partition
     sig = max((p90 - med) / 1.28, 0.004)
     if p90 > med:
         # a plant filling ≥ a tenth of the window (a close-up, a photo without a ROI) puts the
@@ -786,14 +787,14 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
             low = v[v <= t]
             frac = 1.0 - len(low) / len(v)
             if frac >= BIG_PLANT and len(low) > 100:
-                m_l, p_l = _percentile(low, (50, 90))
+                m_l, p_l = percentile(low, (50, 90))
                 s_l = max((p_l - m_l) / 1.28, 0.004)
-                m_u = _median(v[v > t])
+                m_u = median(v[v > t])
                 if m_u > 0 and m_u - m_l >= BIG_SEP * s_l:
                     med, sig = m_l, s_l
     thr = float(np.clip(med + THR_SIGMAS * sig, THR_FLOOR, 0.10))
     above = v[v > thr]
-    contrast = float(np.float32(_median(above)) - med) if len(above) else 0.0  # (float32, as np.median's was)
+    contrast = float(np.float32(median(above)) - med) if len(above) else 0.0  # (float32, as np.median's was)
     return thr, med, contrast
 
 
@@ -852,11 +853,11 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
     ys, xs = np.nonzero(gm)
     xs += origin[0]  # grid coordinates: the same values as from the uncropped mask
     ys += origin[1]
-    g90 = _percentile(v, 90)
-    elong = _elongation(xs, ys) if len(xs) >= 3 else 1.0
+    g90 = percentile(v, 90)
+    elong = elongation(xs, ys) if len(xs) >= 3 else 1.0
     ps, rs, rmax = pc.sum(1) + 30, raw.sum(1) + 30, raw.max(1)
     # the six colour medians in one call (one partition per row instead of six calls)
-    med = _row_medians(np.stack([(pc[:, 1] - pc[:, 0]) / ps, (pc[:, 1] - pc[:, 2]) / ps, (mx - mn) / (mx + 1),
+    med = row_medians(np.stack([(pc[:, 1] - pc[:, 0]) / ps, (pc[:, 1] - pc[:, 2]) / ps, (mx - mn) / (mx + 1),
                               (raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / rs, (rmax - raw.min(1)) / (rmax + 1),
                               (raw[:, 1] - 0.5 * (raw[:, 0] + raw[:, 2])) / rs]))
     return dict(
@@ -873,54 +874,6 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
         mass=float(np.sum(v - soil)),
         d=math.hypot(xs.mean() - cen[0], ys.mean() - cen[1]) / rad,
     )
-
-
-def _percentile(v: np.ndarray, q: float | tuple) -> float | tuple:
-    """`np.percentile(v, q)` of a 1-D array by one partition, with numpy's own float operations
-    (so the same values): q a number (interpolated in v's precision, as numpy does for a
-    scalar q) or a tuple of them (interpolated in float64, returned as a tuple). np.percentile's
-    overhead is ~10× a partition of the few hundred pixels of a candidate."""
-    n = v.size
-    spots = []
-    for qi in (q if isinstance(q, tuple) else (q,)):
-        k = (n - 1) * (qi / 100)  # numpy's virtual index for the linear method
-        lo = n - 1 if k >= n - 1 else max(int(math.floor(k)), 0)
-        spots.append((lo, min(lo + 1, n - 1), k - math.floor(k)))
-    p = np.partition(v, sorted({i for lo, hi, _ in spots for i in (lo, hi)}))
-    out = []
-    for lo, hi, g in spots:
-        a, b = p[lo], p[hi]
-        d = b - a
-        if isinstance(q, tuple):
-            a, b, d = float(a), float(b), float(d)
-        out.append(float(b - d * (1 - g)) if g >= 0.5 else float(a + d * g))
-    return tuple(out) if isinstance(q, tuple) else out[0]
-
-
-def _median(v: np.ndarray) -> float:
-    """`np.median(v)` of a 1-D array (same value) by one partition."""
-    return float(_row_medians(v[None])[0])
-
-
-def _row_medians(a: np.ndarray) -> np.ndarray:
-    """`np.median(a, axis=1)` (same values) by one partition, without np.median's overhead."""
-    n = a.shape[1]
-    k = n // 2
-    if n % 2:
-        return np.partition(a, k, axis=1)[:, k]
-    p = np.partition(a, (k - 1, k), axis=1)
-    return (p[:, k - 1] + p[:, k]) / 2
-
-
-def _elongation(xs: np.ndarray, ys: np.ndarray) -> float:
-    """√(λ1/λ2) of the covariance of pixel coordinates (≥ 2 pixels) plus ¼ px² (a pixel's own
-    extent), from the 2 × 2 eigenvalues in closed form (np.cov + eigvalsh cost ~0.1 ms a call)."""
-    n = len(xs)
-    x = xs - xs.mean()
-    y = ys - ys.mean()
-    sxx, syy, sxy = float(x @ x) / (n - 1) + 0.25, float(y @ y) / (n - 1) + 0.25, float(x @ y) / (n - 1)
-    m, r = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
-    return math.sqrt((m + r) / max(m - r, 1e-12))
 
 
 STRONG_SIGMA = 12.0

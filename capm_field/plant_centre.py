@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
+from .order_stats import percentile
 
 GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
 BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
@@ -68,7 +69,7 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     lam_max = 0.5 * (fxx + fyy + disc)
     ridge = np.where((lam_min < 0) & (np.abs(lam_max) < 0.5 * np.abs(lam_min)), -lam_min, 0.0)
     far = cv2.dilate(pm, np.ones((7, 7), np.uint8)) == 0
-    noise = float(np.percentile(ridge[far], 99)) if np.count_nonzero(far) > 50 else float(np.percentile(ridge, 90))
+    noise = percentile(ridge[far], 99) if np.count_nonzero(far) > 50 else percentile(ridge.ravel(), 90)
     hull = np.zeros_like(pm)
     cv2.fillConvexPoly(hull, cv2.convexHull(np.c_[xs, ys].astype(np.int32)), 1)
     thin = ((ridge > max(noise, 1e-4) * PET_K) & ~broad & (vi > soil + 0.3 * (thr - soil)) & (hull > 0)).astype(np.uint8)

@@ -20,6 +20,7 @@ import math
 import cv2
 import numpy as np
 
+from .order_stats import percentile
 from .plant_centre import HUB_OPEN, HULL_TOL, meeting_point
 
 SIGMA = 1.0  # px: Gaussian scale of the line filter (stalks 1–3 px wide on the stalk grid)
@@ -160,8 +161,8 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     strength, idx, on, own = None, None, None, None
     for img in (grey, index):
         st_, id_, px = line_strength(img, SEG_LEN * size)
-        st_ = st_ / max(float(np.percentile(st_[far], 99)), 1e-6)
-        px = px / max(float(np.percentile(px[far], 99)), 1e-6)
+        st_ = st_ / max(percentile(st_[far], 99), 1e-6)
+        px = px / max(percentile(px[far], 99), 1e-6)
         if strength is None:
             strength, idx, on, own = st_, id_, px > PX_K, px
         else:

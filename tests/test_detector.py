@@ -1149,23 +1149,23 @@ def test_pale_seedling_found_by_local_contrast_while_yellow_soil_tints_are_not()
 def test_fast_order_statistics_equal_numpy(v, q) -> None:
     """The detector's one-partition percentiles and medians give numpy's values bit for bit (the
     bench answers must not move when they replace np.percentile / np.median)."""
-    from capm_field.detector import _median, _percentile, _row_medians
+    from capm_field.order_stats import median, percentile, row_medians
 
-    assert _percentile(v, q) == float(np.percentile(v, q))
-    assert _percentile(v, (q, 50.0)) == tuple(float(x) for x in np.percentile(v, [q, 50.0]))
-    assert _median(v) == float(np.median(v))
+    assert percentile(v, q) == float(np.percentile(v, q))
+    assert percentile(v, (q, 50.0)) == tuple(float(x) for x in np.percentile(v, [q, 50.0]))
+    assert median(v) == float(np.median(v))
     rows = np.stack([v, v[::-1] * 2])
-    assert np.array_equal(_row_medians(rows), np.median(rows, axis=1))
+    assert np.array_equal(row_medians(rows), np.median(rows, axis=1))
 
 
 def test_closed_form_elongation_matches_the_covariance_eigenvalues() -> None:
     """`_elongation` (2 × 2 eigenvalues in closed form) equals √(λ1/λ2) of np.cov + ¼ px² to 1e-9."""
-    from capm_field.detector import _elongation
+    from capm_field.order_stats import elongation
 
     rng = np.random.default_rng(0)
     for n in (2, 3, 10, 200, 5000):
         xs = rng.integers(0, 300, n)
         ys = (0.3 * xs + rng.integers(0, 40, n)).astype(np.int64)
         ev = np.linalg.eigvalsh(np.cov(np.c_[xs, ys].T.astype(float)) + 0.25 * np.eye(2))
-        assert math.isclose(_elongation(xs, ys), math.sqrt(ev[1] / ev[0]), rel_tol=1e-9)
-    assert math.isclose(_elongation(np.arange(50), np.zeros(50, np.int64)), math.sqrt((np.var(np.arange(50), ddof=1) + 0.25) / 0.25))
+        assert math.isclose(elongation(xs, ys), math.sqrt(ev[1] / ev[0]), rel_tol=1e-9)
+    assert math.isclose(elongation(np.arange(50), np.zeros(50, np.int64)), math.sqrt((np.var(np.arange(50), ddof=1) + 0.25) / 0.25))
