@@ -1099,6 +1099,8 @@ def test_glaucous_rule_takes_coloured_leaves_not_neutral_stones() -> None:
     assert _plant_like(leaf)
     assert not _plant_like(dict(leaf, sat_raw=0.03))
     assert not _plant_like(dict(leaf, gsig=6.0))  # too close to the soil's noise
+    assert _plant_like(dict(leaf, g_p90=0.042))  # a pale seedling (bench seed 2 case 5)
+    assert not _plant_like(dict(leaf, g_p90=0.035))
     assert not _plant_like(leaf, vivid=True)  # the second look keeps its own, vivid-only rules
 
 
