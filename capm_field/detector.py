@@ -35,8 +35,8 @@ import numpy as np
 from scipy import ndimage
 
 from . import compound_leaf, leaf_axes, plant_centre, stalks
-from .order_stats import elongation, median, percentile, row_medians
 from .camera import PinholeCamera
+from .order_stats import elongation, median, percentile, row_medians
 
 log = logging.getLogger(__name__)
 
@@ -858,8 +858,8 @@ def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int
     ps, rs, rmax = pc.sum(1) + 30, raw.sum(1) + 30, raw.max(1)
     # the six colour medians in one call (one partition per row instead of six calls)
     med = row_medians(np.stack([(pc[:, 1] - pc[:, 0]) / ps, (pc[:, 1] - pc[:, 2]) / ps, (mx - mn) / (mx + 1),
-                              (raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / rs, (rmax - raw.min(1)) / (rmax + 1),
-                              (raw[:, 1] - 0.5 * (raw[:, 0] + raw[:, 2])) / rs]))
+                                (raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / rs, (rmax - raw.min(1)) / (rmax + 1),
+                                (raw[:, 1] - 0.5 * (raw[:, 0] + raw[:, 2])) / rs]))
     return dict(
         elong=elong,
         area=float(len(v)),

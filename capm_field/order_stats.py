@@ -41,8 +41,11 @@ def median(v: np.ndarray) -> float:
 
 
 def row_medians(a: np.ndarray) -> np.ndarray:
-    """`np.median(a, axis=1)` (same values) by one partition, without np.median's overhead."""
+    """`np.median(a, axis=1)` (same values) by one partition, without np.median's overhead
+    (NaN for rows of no element, as numpy, without its warning)."""
     n = a.shape[1]
+    if n == 0:
+        return np.full(a.shape[0], np.nan)
     k = n // 2
     if n % 2:
         return np.partition(a, k, axis=1)[:, k]

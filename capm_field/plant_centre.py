@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
+
 from .order_stats import percentile
 
 GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)

@@ -1160,6 +1160,7 @@ def test_fast_order_statistics_equal_numpy(v, q) -> None:
     assert median(v) == float(np.median(v))
     rows = np.stack([v, v[::-1] * 2])
     assert np.array_equal(row_medians(rows), np.median(rows, axis=1))
+    assert math.isnan(median(v[:0]))  # as np.median (which also warns)
 
 
 def test_closed_form_elongation_matches_the_covariance_eigenvalues() -> None:
