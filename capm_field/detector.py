@@ -36,6 +36,7 @@ from scipy import ndimage
 
 from . import compound_leaf, leaf_axes, plant_centre, stalks
 from .camera import PinholeCamera
+from .components import components
 from .order_stats import elongation, median, percentile, row_medians
 
 log = logging.getLogger(__name__)
@@ -374,7 +375,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     # soil statistics from every other row and column: the same percentiles in a quarter of the time
     thr, soil_level, contrast = _threshold(vi[::2, ::2][inside[::2, ::2]] if n_in >= 4096 else vi[inside])
     mask = _hysteresis(vi, thr, soil_level, inside)
-    n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    n, lab, stats, cents = components(mask)
     min_area = max(6.0, 1.5e-4 * n_in)
     comps = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area]
     if not comps:
@@ -1112,7 +1113,7 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
     if roi is not None:
         inside = _roi_mask(roi, vi.shape, X0, Y0, kx, ky)
     mask = _hysteresis(vi, thr, soil, inside)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    n, lab, stats, _ = components(mask)
     if n <= 1:
         return None, 0, 0.0
     g = None

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
+from .components import components
 from .order_stats import percentile
 
 GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
@@ -75,7 +76,7 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     cv2.fillConvexPoly(hull, cv2.convexHull(np.c_[xs, ys].astype(np.int32)), 1)
     thin = ((ridge > max(noise, 1e-4) * PET_K) & ~broad & (vi > soil + 0.3 * (thr - soil)) & (hull > 0)).astype(np.uint8)
     thin |= (pm & ~broad).astype(np.uint8)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(thin.astype(np.uint8), connectivity=8)
+    n, lab, stats, _ = components(thin)
     # a stalk carries a leaf (or starts under one): a thin piece far from every broad part is a
     # blade or straw grouped with the plant, and its line crosses the real stalks anywhere
     off_leaf = cv2.distanceTransform((~broad).astype(np.uint8), cv2.DIST_L2, 3) if broad.any() else None
@@ -261,7 +262,7 @@ def component_median(plant: np.ndarray) -> np.ndarray | None:
     centre lies in the empty space the parts are arranged around, not on any part. Needs ≥ 3
     parts, none holding more than half of the plant's area.
     """
-    n, lab, stats, cents = cv2.connectedComponentsWithStats(plant.astype(np.uint8), connectivity=8)
+    n, lab, stats, cents = components(plant)
     if n < 4:
         return None
     area = stats[1:, cv2.CC_STAT_AREA].astype(float)
@@ -278,7 +279,7 @@ def pair_gap(plant: np.ndarray) -> np.ndarray | None:
     seedling) meet where they are closest; the median of the pixels lands in the bigger one.
     Needs two parts holding ≥ PAIR_MIN_SHARE of the plant each and ≥ 0.9 of it together.
     """
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(plant.astype(np.uint8), connectivity=8)
+    n, lab, stats, _ = components(plant)
     if n < 3:
         return None
     area = stats[1:, cv2.CC_STAT_AREA].astype(float)

@@ -20,6 +20,7 @@ import math
 import cv2
 import numpy as np
 
+from .components import components
 from .order_stats import percentile
 from .plant_centre import HUB_OPEN, HULL_TOL, meeting_point
 
@@ -87,8 +88,7 @@ def has_leaf_clusters(plant: np.ndarray) -> bool:
     if len(xs) < 20:
         return False
     size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
-    _, _, st, _ = cv2.connectedComponentsWithStats(cv2.morphologyEx(plant.astype(np.uint8), cv2.MORPH_OPEN, _disc(size)),
-                                                   connectivity=8)
+    _, _, st, _ = components(cv2.morphologyEx(plant.astype(np.uint8), cv2.MORPH_OPEN, _disc(size)))
     return int(np.count_nonzero(st[1:, cv2.CC_STAT_AREA] >= CLUSTER * len(xs))) >= 2
 
 
@@ -191,7 +191,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
         c0, dx, dy = L // 2, L // 2 * math.cos(th), L // 2 * math.sin(th)
         cv2.line(ker, (int(round(c0 - dx)), int(round(c0 - dy))), (int(round(c0 + dx)), int(round(c0 + dy))), 1, 1)
         band = cv2.morphologyEx(band, cv2.MORPH_CLOSE, ker) & free[y0:y0 + band.shape[0], x0:x0 + band.shape[1]]
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(band, connectivity=8)
+        n, lab, stats, _ = components(band)
         for c in range(1, n):
             if stats[c, cv2.CC_STAT_AREA] < MIN_LEN * size:
                 continue
