@@ -785,12 +785,15 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
             q = np.clip((v - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
             t, _ = cv2.threshold(q.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
             t = lo + t * (hi - lo) / 255.0
-            low = v[v <= t]
-            frac = 1.0 - len(low) / len(v)
-            if frac >= BIG_PLANT and len(low) > 100:
-                m_l, p_l = percentile(low, (50, 90))
+            n_low = int(np.count_nonzero(v <= t))
+            frac = 1.0 - n_low / len(v)
+            up = v[v > t] if frac >= BIG_PLANT and n_low > 100 else v[:0]
+            # (the upper class's median is > 0 only if at least half of it is; on most frames
+            # Otsu splits a mottled soil and the upper class is soil, G* < 0: no percentiles then)
+            if len(up) and 2 * np.count_nonzero(up > 0) >= len(up):
+                m_l, p_l = percentile(v[v <= t], (50, 90))
                 s_l = max((p_l - m_l) / 1.28, 0.004)
-                m_u = median(v[v > t])
+                m_u = median(up)
                 if m_u > 0 and m_u - m_l >= BIG_SEP * s_l:
                     med, sig = m_l, s_l
     thr = float(np.clip(med + THR_SIGMAS * sig, THR_FLOOR, 0.10))

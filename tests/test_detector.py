@@ -1174,3 +1174,31 @@ def test_closed_form_elongation_matches_the_covariance_eigenvalues() -> None:
         ev = np.linalg.eigvalsh(np.cov(np.c_[xs, ys].T.astype(float)) + 0.25 * np.eye(2))
         assert math.isclose(elongation(xs, ys), math.sqrt(ev[1] / ev[0]), rel_tol=1e-9)
     assert math.isclose(elongation(np.arange(50), np.zeros(50, np.int64)), math.sqrt((np.var(np.arange(50), ddof=1) + 0.25) / 0.25))
+
+
+@settings(max_examples=200, deadline=None)
+@given(v=hnp.arrays(np.float32, st.integers(1, 60), elements=st.floats(-1.0, 1.0, width=32)))
+def test_median_above_zero_needs_half_the_values_above_zero(v) -> None:
+    """`_threshold` skips the Otsu classes' percentiles when under half of the upper class is > 0,
+    because its median cannot be > 0 then: the property it relies on."""
+    from capm_field.order_stats import median
+
+    if median(v) > 0:
+        assert 2 * np.count_nonzero(v > 0) >= len(v)
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 120), w=st.integers(1, 120),
+       sigma=st.floats(0.3, 4.0), level=st.floats(0.3, 0.7))
+def test_components_equal_opencv_default_labelling(seed, h, w, sigma, level) -> None:
+    """`components` (Grana's labelling) gives the labels, statistics and centroids of
+    cv2.connectedComponentsWithStats(…, connectivity=8) on blobby masks of any shape."""
+    from capm_field.components import components
+
+    noise = np.random.default_rng(seed).random((h, w)).astype(np.float32)
+    mask = cv2.GaussianBlur(noise, (0, 0), sigma) > level
+    n0, lab0, st0, c0 = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    n1, lab1, st1, c1 = components(mask)
+    assert n1 == n0
+    assert np.array_equal(lab1, lab0) and np.array_equal(st1, st0)
+    assert np.allclose(c1, c0, equal_nan=True)
