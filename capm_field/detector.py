@@ -19,7 +19,8 @@ Classical pipeline, no learned weights, sizes relative to the plant or the searc
   4. "cut_by_border" when the plant touches the frame edge near the centre; confidence.
 The pixel returned follows the camera module's convention (pixel centres at integer coordinates);
 `capm_field.camera.PinholeCamera.pixel_to_ground` maps it to the field (H⁻¹). Measured figures
-and the reasons behind each threshold: docs/perception.md.
+and the reasons behind each threshold: docs/perception.md. The index images are made in
+`capm_field.vegetation`, candidates are measured and judged in `capm_field.candidates`.
 """
 
 from __future__ import annotations
@@ -36,8 +37,11 @@ from scipy import ndimage
 
 from . import compound_leaf, leaf_axes, plant_centre, stalks
 from .camera import PinholeCamera
+from .candidates import (LC_RING, STRAW_ELONG, STRAW_ELONG_FULL, STRAW_RAW, candidate_features, contrast_band,
+                         green_blade, plant_like)
 from .components import components
-from .order_stats import elongation, median, percentile, row_medians
+from .order_stats import elongation, median, percentile
+from .vegetation import downscale, pooled_index, resize_down, soil_gains, vegetation_index
 
 log = logging.getLogger(__name__)
 
@@ -288,10 +292,10 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     crop = img[y0:y1, x0:x1]
     # the index image (≤ MID_PX_STAGE1 px, see pooled_index) is made once; the ≤ WORK_PX grid is
     # resampled from it rather than from the full window (one large area resampling, not two)
-    mid = _downscale(crop, MID_PX_STAGE1)
+    mid = downscale(crop, MID_PX_STAGE1)
     s = max(1.0, max(crop.shape[:2]) / WORK_PX)
     if s > 1.0:
-        small = _resize_down(mid, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))))
+        small = resize_down(mid, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))))
     else:
         small = crop
     sx, sy = crop.shape[1] / small.shape[1], crop.shape[0] / small.shape[0]
@@ -397,15 +401,15 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     for k in comps:
         l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
         sub = lab[t0:t0 + h0, l0:l0 + w0] == k
-        f = _candidate(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, cen_s, rad_s,
+        f = candidate_features(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, cen_s, rad_s,
                        origin=(l0, t0))
         f["area_frac"] = f["area"] / n_in
-        if vivid and _contrast_band(f):
+        if vivid and contrast_band(f):
             f["lc"], f["core"] = _local_contrast(img, sub, (l0, t0), win, gains, thr, soil_level)
         feats[k] = dict(f)
         # a long straight piece whose raw colour is not green (straw that the soil white balance
         # turned green) is not joined to a plant next to it: it would drag the plant's centre
-        ok = _plant_like(f, vivid) and not (f["elong"] > STRAW_ELONG and f["g_raw"] < STRAW_RAW)
+        ok = plant_like(f, vivid) and not (f["elong"] > STRAW_ELONG and f["g_raw"] < STRAW_RAW)
         if ok:
             keep.append(k)
         if debug is not None:  # every component's colour features and full-image centroid
@@ -427,15 +431,15 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             f = dict(feats[g[0]])
         else:
             gm = np.isin(lab, g)
-            f = _candidate(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
-            if vivid and _contrast_band(f):
+            f = candidate_features(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
+            if vivid and contrast_band(f):
                 gy, gx = np.nonzero(gm)
                 bx, by = int(gx.min()), int(gy.min())
                 f["lc"], f["core"] = _local_contrast(img, gm[by:gy.max() + 1, bx:gx.max() + 1], (bx, by), win, gains, thr, soil_level)
         f["area_frac"] = f["area"] / n_in
         box = None  # full-image box of a candidate with a positive score, for "contenders"
-        f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and _plant_like(f, vivid)
-                       and (f["elong"] <= STRAW_ELONG or _green_blade(f)))
+        f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and plant_like(f, vivid)
+                       and (f["elong"] <= STRAW_ELONG or green_blade(f)))
         if f["ok"]:
             # green mass measured at full resolution (the stage-1 max-pooling inflates small
             # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
@@ -454,7 +458,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
             cut = bool(np.any(gm & rim))
             f["score"] = f["mass_full"] * math.exp(-0.5 * (f["d"] / CENTRAL_SIGMA) ** 2) * (0.33 if cut else 1.0)
             # a straight thin piece at full resolution is straw, not a weed (measured: weeds ≤ 4.5)
-            if f["elong_full"] > STRAW_ELONG_FULL and not _green_blade(f):
+            if f["elong_full"] > STRAW_ELONG_FULL and not green_blade(f):
                 f["score"] = 0.0
             # the TROI holds the weed's centre (the margin is for overhanging leaves only)
             if roi is not None and not roi.contains(to_full(np.array([xs.mean(), ys.mean()]))[None], 1.0)[0]:
@@ -555,7 +559,7 @@ def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant
     if xb - xa < 16 or yb - ya < 16:
         return None, None
     NW, NH = max(int((xb - xa) / p), 8), max(int((yb - ya) / p), 8)
-    region = _resize_down(img[ya:yb, xa:xb], (NW, NH)) if p > 1.0 else img[ya:yb, xa:xb]
+    region = resize_down(img[ya:yb, xa:xb], (NW, NH)) if p > 1.0 else img[ya:yb, xa:xb]
     p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
     grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
     vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
@@ -583,38 +587,6 @@ def _mask_box(xs: np.ndarray, ys: np.ndarray, to_full) -> tuple[float, float, fl
     return float(fx0), float(fy0), float(fx1), float(fy1)
 
 
-SOIL_REF = np.array([0.27, 0.33, 0.40], np.float32)  # typical soil chromaticity (B, G, R)
-
-
-def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
-    """Per-channel gains mapping the scene's soil to a typical soil colour (von Kries).
-
-    The soil reference is the median colour of the less-green half of the pixels, so a colour
-    cast of the light or the camera's white balance is removed before judging greenness. Gains
-    are bounded (GAIN_MIN..GAIN_MAX) so a frame filled with leaves cannot be "corrected" into soil
-    and a yellow or red soil is not made grey.
-    """
-    # a sample of ~20 000 pixels is enough for medians: stride the grid before masking
-    k = max(1, int(math.sqrt(bgr.shape[0] * bgr.shape[1] / 20000)))
-    sub = bgr[::k, ::k]
-    # rows picked by index (`take`): the same pixels as a boolean mask over (h, w, 3), ~2× faster
-    px = np.ascontiguousarray(sub).reshape(-1, 3)
-    f = (px if inside is None else px.take(np.flatnonzero(inside[::k, ::k]), axis=0)).astype(np.float32)
-    gs = greenness(f[None])[0]
-    soil = f.take(np.flatnonzero(gs <= median(gs)), axis=0)
-    ref = row_medians(np.ascontiguousarray(soil.T)) + 1.0
-    g = SOIL_REF / (ref / ref.sum())
-    return np.clip((g / g[1]) ** WB_STRENGTH, GAIN_MIN, GAIN_MAX).astype(np.float32)
-
-
-WB_STRENGTH = 1.0  # exponent on the gains (0.5, 0.75 measured: no better)
-# gain bounds: enough for a light or camera colour cast; a soil that is itself yellow (sand,
-# straw) or red keeps most of its colour, else its "correction" turns a dark green leaf grey-
-# blue (0.6–1.6 lost 4 of 100 rosettes on yellow soils in bench/other_renderer_rosettes.py;
-# bench seeds 0–3 unchanged within ±1 case)
-GAIN_MIN, GAIN_MAX = 0.8, 1.25
-
-
 def _roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float, sy: float) -> np.ndarray:
     """The ROI ellipse grown by ROI_MARGIN, rasterised on a grid whose pixel (i, j) is the full
     image point (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
@@ -637,127 +609,8 @@ def _roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float,
     return m.astype(bool)
 
 
-def greenness(bgr: np.ndarray) -> np.ndarray:
-    """G* = (G − max(R, B)) / (B + G + R + 30): positive only where green dominates.
-
-    Live leaves reflect green more than red and blue; soil, stones, straw and dead leaves do not.
-    The +30 keeps sensor noise in dark shadows from looking green.
-    """
-    f = bgr if bgr.dtype == np.float32 else bgr.astype(np.float32)
-    if f.ndim == 3 and f.shape[2] == 3 and f.flags.c_contiguous:
-        b, g, r = cv2.split(f)  # copies: `_gstar` may overwrite them
-    else:
-        b, g, r = (np.ascontiguousarray(f[..., k]) for k in range(3))
-    return _gstar(b, g, r)
-
-
-def _gstar(b: np.ndarray, g: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """G* of float32 planes, computed in place (b and r are overwritten): a fresh full-size float
-    image can cost more in page faults (~2 µs per 4 kB page on the VM) than the arithmetic."""
-    num = cv2.max(r, b)
-    cv2.subtract(g, num, dst=num)  # G − max(R, B)
-    cv2.add(b, g, dst=b)
-    cv2.add(r, 30.0, dst=r)
-    cv2.add(b, r, dst=b)  # (B + G) + (R + 30)
-    return cv2.divide(num, b, dst=num)
-
-
-def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: np.ndarray | None = None,
-                     lab: bool = False) -> np.ndarray:
-    """Greenness after soil-referenced white balance (see `soil_gains`), float32 (h, w).
-
-    lab=False: G* (`greenness`). lab=True: −a*/100 of CIELAB, the green–red opponent axis, which
-    also ranks yellow-green leaves (G ≈ R) above soil and straw; used by the second look only.
-    """
-    if gains is None:
-        gains = soil_gains(bgr, inside)
-    if lab:
-        wb = _scaled(bgr, gains / 255.0)
-        np.clip(wb, 0.0, 1.0, out=wb)  # in place: fewer fresh full-size images (see below)
-        a = cv2.extractChannel(cv2.cvtColor(wb, cv2.COLOR_BGR2Lab), 1)
-        return np.multiply(a, np.float32(-0.01), out=a)
-    if bgr.dtype == np.uint8 and bgr.ndim == 3 and bgr.shape[2] == 3:
-        # split the 8-bit planes first and scale each: ~4× faster than scaling the 3-channel
-        # image to float and splitting that (same values)
-        return _gstar(*(cv2.multiply(p, float(k), dtype=cv2.CV_32F) for p, k in zip(cv2.split(bgr), gains)))
-    return greenness(_scaled(bgr, gains))
-
-
-def _scaled(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
-    """float32 bgr × per-channel gains (OpenCV: ~4× faster than numpy's cast and multiply)."""
-    if bgr.ndim != 3 or bgr.shape[2] != 3:
-        return bgr.astype(np.float32) * gains
-    return cv2.multiply(bgr, (float(gains[0]), float(gains[1]), float(gains[2]), 0.0), dtype=cv2.CV_32F)
-
-
 MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is computed on (stage 1)
 MID_PX_STAGE2 = 120_000  # same for the plant crop (stage 2)
-
-
-def _resize_down(src: np.ndarray, size: tuple[int, int], exact: bool = False) -> np.ndarray:
-    """`src` area-resampled down to `size` (w, h), by OpenCV's fast paths.
-
-    cv2.INTER_AREA at a non-integer ratio takes a slow general path (2–3 ms for a 0.3 MP window,
-    a tenth of the frame budget); at an exact integer ratio it is a fast box average. So a ratio
-    r ≥ AREA_MIN_RATIO is done as a bilinear resampling to k × `size`, k = max(2, ⌊r⌋) (a ratio
-    r/k within [0.75, 1.5)), followed by the k × k box average: every source pixel keeps a
-    weight, thin stems are not skipped (mean difference to INTER_AREA ≈ 0.1–0.2 grey levels).
-    Below it, bilinear resampling (after a light blur, see below) touches every source pixel.
-    Stage 1 of a bench frame: −1.8 ms median latency (paired, seed 0); the benches moved by
-    their resampling noise (seeds 0–3: wrong centres 29 → 28, detections 996 → 994 of 1020).
-    exact=True: plain INTER_AREA, for stage 2 (the plant crop, where the centre is located; the
-    fast path saved no measurable time there).
-    """
-    nw, nh = size
-    h, w = src.shape[:2]
-    if (nw, nh) == (w, h):
-        return src
-    if exact:
-        return cv2.resize(src, (nw, nh), interpolation=cv2.INTER_AREA)
-    r = min(w / nw, h / nh)
-    if r < AREA_MIN_RATIO:
-        # bilinear alone averages less than the area filter where samples fall on pixel centres:
-        # the soil's noise would rise (and so the 5 σ threshold); a 3 × 3 Gaussian of σ = 0.3 r
-        # restores INTER_AREA's noise level within ~5 %
-        return cv2.resize(cv2.GaussianBlur(src, (3, 3), 0.3 * r), (nw, nh), interpolation=cv2.INTER_LINEAR)
-    k = max(2, int(r))
-    if (w, h) != (k * nw, k * nh):
-        src = cv2.resize(src, (k * nw, k * nh), interpolation=cv2.INTER_LINEAR)
-    return cv2.resize(src, (nw, nh), interpolation=cv2.INTER_AREA)
-
-
-AREA_MIN_RATIO = 1.5  # downscale ratio from which `_resize_down` box-averages
-
-
-def _downscale(bgr: np.ndarray, max_px: int, exact: bool = False) -> np.ndarray:
-    """`bgr` itself if it has at most `max_px` pixels, else area-resampled down to that many."""
-    h, w = bgr.shape[:2]
-    g = max(1.0, math.sqrt(h * w / max_px))
-    if g <= 1.0:
-        return bgr
-    return _resize_down(bgr, (max(1, round(w / g)), max(1, round(h / g))), exact)
-
-
-def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int, lab: bool = False,
-                 exact: bool = False) -> np.ndarray:
-    """Vegetation index of `bgr` on a coarser grid `size` (w, h), thin parts kept (max-pooling).
-
-    Averaging colours before judging greenness dilutes 1–2 px stems, petioles and grass blades
-    into the soil. The index is computed at an intermediate resolution (the input itself if it
-    has at most `mid_px` pixels, else downscaled to that), lightly smoothed against sensor noise,
-    then max-pooled (grey dilation over one output cell, then area resampling) to `size`.
-    """
-    nw, nh = size
-    mid = _downscale(bgr, mid_px, exact)
-    vi = vegetation_index(mid, gains=gains, lab=lab)
-    # blur and dilate in place (same values): no further full-size temporaries
-    cv2.GaussianBlur(vi, (0, 0), 0.7, dst=vi)
-    f = mid.shape[1] / nw
-    if f <= 1.25:
-        return cv2.resize(vi, (nw, nh), interpolation=cv2.INTER_LINEAR) if (nw, nh) != (mid.shape[1], mid.shape[0]) else vi
-    k = int(round(f))
-    cv2.dilate(vi, np.ones((k, k), np.uint8), dst=vi)
-    return _resize_down(vi, (nw, nh), exact)
 
 
 def _threshold(v: np.ndarray) -> tuple[float, float, float]:
@@ -771,7 +624,7 @@ def _threshold(v: np.ndarray) -> tuple[float, float, float]:
     ≥ BIG_SEP σ above it (dull rosettes covering 11–15 % of a frame: 13 of 30 "no_plant" → 4;
     bench seeds 0–3: two frames of 1200 moved by ≤ 0.3 mm). Vegetation must stand
     5 σ above the soil level, with the threshold kept within G* ∈ [0, 0.10] (the old floor 0.02
-    lost olive grass and yellow-green seedlings; the per-candidate colour rule `_plant_like`
+    lost olive grass and yellow-green seedlings; the per-candidate colour rule `plant_like`
     now keeps bare soil empty).
     """
     v = v.ravel()
@@ -819,108 +672,12 @@ def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> 
     return np.take(keep, lab)  # = keep[lab], ~2× faster than fancy indexing
 
 
-def _green_blade(f: dict) -> bool:
-    """A long straight candidate that is no straw: green above red in the camera's own colours
-    and after the white balance (a single grass blade, two cotyledons in a line: elongation 5–6
-    at full resolution). Bench straw and other long non-weed pieces: min(g_raw, gr) ≤ 0.044."""
-    return min(f["g_raw"], f["gr"]) >= BLADE_GREEN
-
-
-BLADE_GREEN = 0.06
-STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5 (but see `_green_blade`)
-STRAW_ELONG = 6.5  # same on the stage-1 grid (weeds measured ≤ 5.9 but one merged with straw)
-STRAW_RAW = -0.012  # g_raw below which a long straight piece is straw (measured: straw −0.04 … −0.010, olive
-# grass blades ≥ −0.005; bench seeds 0–3, plant-like pieces of elongation > STRAW_ELONG: the weed's own ≥ −0.0098,
-# bare soil's down to −0.016; −0.02 → −0.012: bench bare soil 2 more of 180; bench weeds, other renderer seeds 0–2,
-# photo-like grass (seed 3) and 200 fresh bare scenes unchanged)
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
-
-
-def _candidate(gm, vi, small, gains, soil, sig, cen, rad, origin: tuple[int, int] = (0, 0)) -> dict:
-    """Features of one candidate plant (mask gm on the stage-1 grid, or on a crop of it whose
-    top-left pixel is `origin` (x, y) of the grid, with vi and small cropped alike).
-
-    g_p90: 90th percentile of the index (absolute), gsig: the same above the soil level in soil σ,
-    gb: median (G − B)/(R + G + B + 30) after the soil white balance (leaves reflect far more
-    green than blue; grey stones turned cyan-green by the white balance and straw do not),
-    gr: the same with G − R (blue-green leaves, whose gb is low), sat: median saturation after
-    white balance, g_raw: median (G − max(R, B))/(R + G + B + 30) before it, sat_raw: median
-    saturation before it (a neutral stone is ≈ 0 there whatever the white balance makes of it),
-    gm_raw: median (G − (R + B)/2)/(R + G + B + 30) before it (the green–magenta axis, across
-    which daylight, shade and warm light barely move a colour: a grey stone stays ≈ 0 there),
-    mass: Σ (index − soil), d: distance of the centroid from the ROI centre in ROI radii.
-    """
-    v = vi[gm]
-    raw = small[gm].astype(np.float32)
-    pc = raw * gains
-    mx, mn = pc.max(1), pc.min(1)
-    ys, xs = np.nonzero(gm)
-    xs += origin[0]  # grid coordinates: the same values as from the uncropped mask
-    ys += origin[1]
-    g90 = percentile(v, 90)
-    elong = elongation(xs, ys) if len(xs) >= 3 else 1.0
-    ps, rs, rmax = pc.sum(1) + 30, raw.sum(1) + 30, raw.max(1)
-    # the six colour medians in one call (one partition per row instead of six calls)
-    med = row_medians(np.stack([(pc[:, 1] - pc[:, 0]) / ps, (pc[:, 1] - pc[:, 2]) / ps, (mx - mn) / (mx + 1),
-                                (raw[:, 1] - np.maximum(raw[:, 0], raw[:, 2])) / rs, (rmax - raw.min(1)) / (rmax + 1),
-                                (raw[:, 1] - 0.5 * (raw[:, 0] + raw[:, 2])) / rs]))
-    return dict(
-        elong=elong,
-        area=float(len(v)),
-        g_p90=g90,
-        gsig=(g90 - soil) / sig,
-        gb=float(med[0]),
-        gr=float(med[1]),
-        sat=float(med[2]),
-        g_raw=float(med[3]),
-        sat_raw=float(med[4]),
-        gm_raw=float(med[5]),
-        mass=float(np.sum(v - soil)),
-        d=math.hypot(xs.mean() - cen[0], ys.mean() - cen[1]) / rad,
-    )
-
-
-STRONG_SIGMA = 12.0
-VIVID_SAT, VIVID_GB = 0.42, 0.15  # second look: bare-soil candidates measured sat ≤ 0.38, gb ≤ 0.14
-BIG_FRAC, BIG_GB, BIG_SAT, BIG_SIGMA = 0.01, 0.09, 0.30, 8.0  # second look: a candidate ≥ 1 % of the window
-# (bench bare soil: those reach gb 0.081, saturation 0.24, 2.8 σ; weeds missed there: ≥ 0.096, 0.31)
-HUGE_FRAC, HUGE_GB, HUGE_SAT = 0.02, 0.10, 0.33  # second look: a candidate ≥ 2 % of the window this coloured needs
-# no margin in soil σ (a large pale rosette on a bright, grainy sand: 3.3 σ, gb 0.12, sat 0.36, bench seed 3
-# case 80; every bench component that large off the weed measured gb ≤ 0.085, sat ≤ 0.29)
 VIVID_WB = 0.5  # exponent on the soil white balance in the second look: half (a full pull towards a reddish
 # soil turns yellow-green leaves on grey-olive soil orange; none measured 0.4 % fewer detections)
 VIVID_AREA = 3.0  # × the minimum component area (a 20-px green speck on bare soil came up; 4.0 until
 # session 13: bench seed 1 case 1, a seedling of 41 stage-1 px under 4 × 11.8, lost to a distractor 63 mm away; 3.0 moved
 # no bench bare-soil frame, none of 200 fresh bare scenes or bench/stones_on_soils.py, bench wrong 25 → 24)
-# second look, local contrast: a compact candidate in the colour band just below VIVID_* (where
-# pale seedlings and soil tints overlap) is a plant when it stands out from the soil right round
-# it (a leaf is a patch with an edge; a soil tint fades into its surroundings). Measured on bench
-# seeds 0–3 (AUC 0.95 all seedlings vs all bare components; 0.70 for the missed ones): misses +
-# wrong 53 → 51, bare soil unchanged (also 200 fresh bare scenes); photo-like seeds 3–6 +6
-# detections, other renderer +2 (commit 6e662de)
-LC_ELONG, LC_GB, LC_SAT, LC_SIGMA = 4.0, 0.085, 0.29, 5.0  # (LC_ELONG 3.5 until session 12: bench seed 2
-# case 25, two cotyledons in a line at 3.7, was missed; 4.0 moved nothing else on the bench, 200 fresh bare
-# scenes, other renderer seeds 0–2 or photo-like seeds 3–6)
-LC_MIN = 5.8  # (index inside − ring median) / ring σ for a plant ...
-LC_MIN_THICK, LC_CORE = 3.5, 0.44  # ... or this much with ≥ LC_CORE of it left by a 3 × 3 erosion (not a thin rim)
-LC_RING = (3, 9)  # full-resolution dilations whose difference is the ring of soil round the candidate
-# paler than LC_SAT: in the band only with twice LC_SIGMA over the soil (weaker colour, stronger margin). Bench
-# seeds 0-3: +1 seedling, a grass 27 -> 7 mm (sat 0.278-0.290, >= 14 sigma); at 0.25 without the margin a soil patch
-# of 200 fresh bare scenes (6.3 sigma) was a plant; photo-like, other renderer, stones unchanged
-LC_SAT_PALE, LC_SIGMA_PALE = 0.25, 10.0
-
-
-def _contrast_band(f: dict) -> bool:
-    """Whether the second look measures a candidate's local contrast (`_local_contrast`): only
-    where the colour rule alone does not take it (below VIVID_SAT or VIVID_GB)."""
-    sat_ok = f["sat"] >= LC_SAT or f["sat"] >= LC_SAT_PALE and f["gsig"] >= LC_SIGMA_PALE
-    return f["elong"] <= LC_ELONG and f["gb"] >= LC_GB and sat_ok and f["gsig"] >= LC_SIGMA \
-        and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB)
-
-
-def _stands_out(f: dict) -> bool:
-    lc = f.get("lc", 0.0)
-    return _contrast_band(f) and (lc >= LC_MIN or lc >= LC_MIN_THICK and f.get("core", 0.0) >= LC_CORE)
 
 
 def _local_contrast(img: np.ndarray, sub: np.ndarray, origin: tuple[int, int], win: "_Window", gains: np.ndarray,
@@ -951,99 +708,6 @@ def _local_contrast(img: np.ndarray, sub: np.ndarray, origin: tuple[int, int], w
         return 0.0, core
     rv = vf[ring]
     return (float(np.median(vf[m > 0])) - float(np.median(rv))) / max(float(rv.std()), 1e-4), core
-
-
-def _large_and_coloured(f: dict) -> bool:
-    """Second look: a large candidate needs less than the vivid colour (soil tints that large are
-    dull): ≥ BIG_FRAC of the window with gb ≥ BIG_GB, saturation ≥ BIG_SAT and ≥ BIG_SIGMA soil σ,
-    or ≥ HUGE_FRAC with gb ≥ HUGE_GB and saturation ≥ HUGE_SAT whatever its σ."""
-    big = f["area_frac"] >= BIG_FRAC and f["gb"] >= BIG_GB and f["sat"] >= BIG_SAT and f["gsig"] >= BIG_SIGMA
-    return big or f["area_frac"] >= HUGE_FRAC and f["gb"] >= HUGE_GB and f["sat"] >= HUGE_SAT
-
-
-def _raw_blue_green(f: dict) -> bool:
-    """Second look: bluish-green leaves of middling colour (gb 0.04–0.08, saturation 0.22–0.30,
-    below the vivid and teal rules) that are green above both red and blue in the camera's own
-    colours (g_raw ≥ RAW_BG_RAW), greener than red after the white balance, ≥ RAW_BG_SIGMA soil σ
-    out, and saturated before the white balance too (sat_raw ≥ RAW_BG_SAT_RAW: a grey stone under
-    a green cast is as green in the raw image, but measured sat_raw ≤ 0.20)."""
-    return f["g_raw"] >= RAW_BG_RAW and f["gr"] >= RAW_BG_GR and f["gsig"] >= RAW_BG_SIGMA \
-        and f["sat"] >= RAW_BG_SAT and f["sat_raw"] >= RAW_BG_SAT_RAW
-
-
-RAW_BG_RAW, RAW_BG_GR, RAW_BG_SIGMA, RAW_BG_SAT, RAW_BG_SAT_RAW = 0.02, 0.05, 8.0, 0.20, 0.23  # (session 13:
-# other renderer's bluish-green grass and seedlings, g_raw 0.021–0.057, sat_raw 0.26; bench bare-soil components
-# of the second look on seeds 0–3 and 200 fresh bare scenes: none passes; bench/stones_on_soils.py: 46 of 384
-# without the sat_raw clause, 31 with it, as before the rule)
-
-
-def _plant_like(f: dict, vivid: bool = False) -> bool:
-    """Whether a candidate's colour is that of a live plant rather than soil, stone or straw.
-
-    Measured on the bench candidates (bench/perception_candidates.py, docs/perception.md):
-    live leaves have gb ≥ 0.07 and saturation ≥ 0.2 after white balance, and either a clear
-    absolute greenness (G* p90 ≥ 0.04) or a strong margin over the soil (≥ 5 σ) with gb ≥ 0.10.
-    Grey-green (dull), glaucous and blue-green (teal) leaves have rules of their own, and so has
-    a large candidate green above red and blue before and after the white balance (both looks). Any
-    candidate must be greener than magenta before the white balance (gm_raw ≥ GM_RAW_MIN). The second look
-    (`vivid`, −a*) takes vivid colours, teal leaves, large coloured candidates
-    (`_large_and_coloured`), compact ones that stand out from the soil round them (`_stands_out`)
-    and bluish-green ones that are green in the raw image too (`_raw_blue_green`).
-    """
-    if f["gm_raw"] < GM_RAW_MIN:
-        # not greener than magenta in the camera's own colours: a grey stone (or anything
-        # neutral) that the white balance on a purplish or red soil made look green
-        return False
-    if f["area_frac"] >= RAW_GREEN_FRAC and min(f["g_raw"], f["gr"], f["gb"]) >= RAW_GREEN and f["sat_raw"] >= RAW_BG_SAT_RAW:
-        # large and green above both red and blue, in the camera's own colours and after the
-        # white balance alike: a leaf, however wide the soil's spread (a two-tone soil puts σ so
-        # high that a grass clearly above it stands only 4 σ out)
-        return True
-    margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
-    if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not _large_and_coloured(f) and not _stands_out(f):
-        if _raw_blue_green(f):
-            return True
-        # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
-        return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR
-    # the weaker the absolute greenness, the stronger the margin over the soil must be: ≥ 5 σ
-    # with gb ≥ 0.10, or ≥ 12 σ with the base gb (dark olive grass on dark soil: G* p90 0.015
-    # at 15 σ, gb 0.096 — demo seed 8)
-    strong = f["gsig"] >= 5 and f["gb"] >= 0.10 or f["gsig"] >= STRONG_SIGMA
-    if f["gb"] >= 0.07 and f["sat"] >= 0.2 and margin >= 0.1 and (f["g_p90"] >= 0.04 or strong):
-        return True
-    # grey- or blue-green leaves (glaucous, or dulled by overcast light): green above both red
-    # and blue in the median, also before the white balance (which turns grey stones on a red
-    # soil just as green), and far above the soil (≥ 12 σ)
-    if not vivid and f["gsig"] >= STRONG_SIGMA and f["g_p90"] >= 0.035 and f["gb"] >= DULL_GB and f["gr"] >= DULL_GR \
-            and f["sat"] >= DULL_SAT and f["g_raw"] >= DULL_RAW:
-        return True
-    # glaucous or dulled leaves of middling contrast (8–12 σ) whose green is clear after the
-    # white balance (G* p90 ≥ 0.05) but only a little above blue: coloured in the raw image too
-    # (a neutral stone that the white balance on a purplish soil turns just as green is not:
-    # sat_raw ≤ 0.04 measured). Other renderer +1 %, photo-like seeds 0–6: +4 answers
-    if not vivid and f["gsig"] >= GLAUC_SIGMA and f["g_p90"] >= GLAUC_G90 and f["gb"] >= GLAUC_GB \
-            and f["gr"] >= GLAUC_GR and f["sat"] >= GLAUC_SAT and f["g_raw"] >= GLAUC_RAW and f["sat_raw"] >= GLAUC_SAT_RAW:
-        return True
-    # blue-green (glaucous) leaves: green barely above blue (gb < 0.07) but far above red,
-    # further than any soil, stone or straw of the bench (gr ≤ 0.07 on its bare-soil frames)
-    return not vivid and f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 \
-        and (f["gr"] >= TEAL_GR or f["gr"] >= TEAL_GR_WEAK and f["g_p90"] >= 0.04)
-
-
-DULL_GB, DULL_GR, DULL_SAT, DULL_RAW = 0.02, 0.03, 0.15, 0.02
-RAW_GREEN, RAW_GREEN_FRAC = 0.04, 0.003  # (session 16: bench seeds 0–3 +1 found, −1 wrong, nothing else moved;
-# no bare-soil component of either look on seeds 0–3 and 200 fresh bare scenes reaches 0.04 in all three; stones
-# under bench/stones_on_soils.py's green cast do, with sat_raw 0.20–0.21, hence the raw blue-green rule's
-# RAW_BG_SAT_RAW here too: 31 of 384 as before, 39 at sat_raw ≥ 0.20; other renderer, photo-like: unchanged)
-GM_RAW_MIN = 0.009  # bench weeds measured ≥ 0.017 (1 % ≤ 0.032), a bluish grass of another renderer 0.010,
-# neutral stones ≤ 0.007 (bench/stones_on_soils.py, 12 soils × 8 greys × 4 casts: plant answers
-# 44 → 31 of 384; 20 of the rest under a green cast, which makes the stones green in the raw image too)
-GLAUC_SIGMA, GLAUC_G90, GLAUC_GB, GLAUC_GR, GLAUC_SAT = 8.0, 0.04, 0.03, 0.015, 0.17  # (G90 0.05 until session 16:
-# a pale mint-green photo-like clover at 0.049 and bench seed 2 case 5, a seedling at 0.042 (247 → 8 mm); no bench or
-# fresh bare component and no stone of bench/stones_on_soils.py passes at 0.04; other renderer seed 0 wrong 4 → 3)
-GLAUC_RAW, GLAUC_SAT_RAW = -0.01, 0.10  # the rescued leaves measured sat_raw 0.12–0.30
-TEAL_GB, TEAL_SAT = 0.01, 0.22
-TEAL_GR, TEAL_GR_WEAK = 0.12, 0.08  # gr = median (G − R)/(R + G + B + 30) after white balance
 
 
 GROUP_GAP = 0.35  # × the group's diameter: largest gap a component may be joined across

@@ -1071,12 +1071,12 @@ def test_fast_downscale_matches_area_resampling(ratio: float) -> None:
     """The stage-1 downscale (bilinear + integer box average) stays within a grey level of
     INTER_AREA on a textured image, and a one-pixel stem at any phase keeps ≥ 0.7 of the
     weight INTER_AREA gives it (bilinear resampling alone drops it at ratios near 2)."""
-    from capm_field.detector import _resize_down
+    from capm_field.vegetation import resize_down
 
     rng = np.random.default_rng(int(ratio * 100))
     tex = cv2.GaussianBlur(rng.integers(0, 256, (300, 420, 3), dtype=np.uint8), (0, 0), 1.5)
     size = (round(420 / ratio), round(300 / ratio))
-    fast = _resize_down(tex, size).astype(float)
+    fast = resize_down(tex, size).astype(float)
     ref = cv2.resize(tex, size, interpolation=cv2.INTER_AREA).astype(float)
     assert fast.shape == ref.shape
     assert np.abs(fast - ref).mean() < 1.0
@@ -1084,7 +1084,7 @@ def test_fast_downscale_matches_area_resampling(ratio: float) -> None:
         line = np.zeros((40, 420, 3), np.uint8)
         line[:, 100 + x] = 255
         sz = (size[0], round(40 / ratio))
-        kept = int(_resize_down(line, sz)[..., 1].max())
+        kept = int(resize_down(line, sz)[..., 1].max())
         area = int(cv2.resize(line, sz, interpolation=cv2.INTER_AREA)[..., 1].max())
         assert kept >= 0.7 * area, (x, kept, area)
 
@@ -1094,16 +1094,16 @@ def test_glaucous_rule_takes_coloured_leaves_not_neutral_stones() -> None:
     plant, rejected by every other colour rule) are plant-like; the same features with the raw
     saturation of a neutral stone (which the white balance on a purplish soil turns as green)
     are not."""
-    from capm_field.detector import _plant_like
+    from capm_field.candidates import plant_like
 
     leaf = dict(area=161.0, gsig=14.2, g_p90=0.078, gb=0.064, gr=0.040, sat=0.22, g_raw=0.0, sat_raw=0.30,
                 gm_raw=0.044, elong=1.2, area_frac=0.003, d=0.68)
-    assert _plant_like(leaf)
-    assert not _plant_like(dict(leaf, sat_raw=0.03))
-    assert not _plant_like(dict(leaf, gsig=6.0))  # too close to the soil's noise
-    assert _plant_like(dict(leaf, g_p90=0.042))  # a pale seedling (bench seed 2 case 5)
-    assert not _plant_like(dict(leaf, g_p90=0.035))
-    assert not _plant_like(leaf, vivid=True)  # the second look keeps its own, vivid-only rules
+    assert plant_like(leaf)
+    assert not plant_like(dict(leaf, sat_raw=0.03))
+    assert not plant_like(dict(leaf, gsig=6.0))  # too close to the soil's noise
+    assert plant_like(dict(leaf, g_p90=0.042))  # a pale seedling (bench seed 2 case 5)
+    assert not plant_like(dict(leaf, g_p90=0.035))
+    assert not plant_like(leaf, vivid=True)  # the second look keeps its own, vivid-only rules
 
 
 def test_large_raw_green_rule_takes_leaves_on_two_tone_soil_not_stones_under_a_green_cast() -> None:
@@ -1112,15 +1112,15 @@ def test_large_raw_green_rule_takes_leaves_on_two_tone_soil_not_stones_under_a_g
     under the base rule's 0.07) and seed 3 case 38 (grass, second look) are found near their
     centre. A grey stone under a green cast (bench/stones_on_soils.py, sat_raw ≤ 0.21) and a
     speck of the grass's colour are not taken by this rule."""
-    from capm_field.detector import _plant_like
+    from capm_field.candidates import plant_like
 
     grass = dict(area=773.0, area_frac=0.0099, gb=0.069, gr=0.072, sat=0.224, sat_raw=0.284, g_raw=0.073,
                  gm_raw=0.087, gsig=3.99, g_p90=0.0895, elong=1.13, d=0.3)
-    assert _plant_like(grass) and _plant_like(grass, vivid=True)
+    assert plant_like(grass) and plant_like(grass, vivid=True)
     stone = dict(grass, area_frac=0.0062, gb=0.058, gr=0.040, sat=0.167, sat_raw=0.202, g_raw=0.048, gm_raw=0.060, gsig=8.3)
-    assert not _plant_like(stone) and not _plant_like(stone, vivid=True)
-    assert not _plant_like(dict(grass, sat_raw=0.21))
-    assert not _plant_like(dict(grass, area_frac=0.001))  # a speck needs the other rules
+    assert not plant_like(stone) and not plant_like(stone, vivid=True)
+    assert not plant_like(dict(grass, sat_raw=0.21))
+    assert not plant_like(dict(grass, area_frac=0.001))  # a speck needs the other rules
     for seed, i in ((2, 54), (3, 38)):
         case = make_case(seed, i, CAM, TaskConfig().delta, bare=False)
         det = detect_centre(case.scene.render(case.T, CAM), roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))

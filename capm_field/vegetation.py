@@ -1,0 +1,165 @@
+"""Vegetation index images for the weed detector: soil-referenced white balance, G* and CIELAB
+−a*, and the max-pooled index on a coarser grid that keeps thin blades and stalks.
+
+Stage 1 (find the plant) and stage 2 (find its centre) of `capm_field.detector` both work on
+these; the resampling helpers keep OpenCV on its fast paths (see `resize_down`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from .order_stats import median, row_medians
+
+SOIL_REF = np.array([0.27, 0.33, 0.40], np.float32)  # typical soil chromaticity (B, G, R)
+
+
+def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
+    """Per-channel gains mapping the scene's soil to a typical soil colour (von Kries).
+
+    The soil reference is the median colour of the less-green half of the pixels, so a colour
+    cast of the light or the camera's white balance is removed before judging greenness. Gains
+    are bounded (GAIN_MIN..GAIN_MAX) so a frame filled with leaves cannot be "corrected" into soil
+    and a yellow or red soil is not made grey.
+    """
+    # a sample of ~20 000 pixels is enough for medians: stride the grid before masking
+    k = max(1, int(math.sqrt(bgr.shape[0] * bgr.shape[1] / 20000)))
+    sub = bgr[::k, ::k]
+    # rows picked by index (`take`): the same pixels as a boolean mask over (h, w, 3), ~2× faster
+    px = np.ascontiguousarray(sub).reshape(-1, 3)
+    f = (px if inside is None else px.take(np.flatnonzero(inside[::k, ::k]), axis=0)).astype(np.float32)
+    gs = greenness(f[None])[0]
+    soil = f.take(np.flatnonzero(gs <= median(gs)), axis=0)
+    ref = row_medians(np.ascontiguousarray(soil.T)) + 1.0
+    g = SOIL_REF / (ref / ref.sum())
+    return np.clip((g / g[1]) ** WB_STRENGTH, GAIN_MIN, GAIN_MAX).astype(np.float32)
+
+
+WB_STRENGTH = 1.0  # exponent on the gains (0.5, 0.75 measured: no better)
+# gain bounds: enough for a light or camera colour cast; a soil that is itself yellow (sand,
+# straw) or red keeps most of its colour, else its "correction" turns a dark green leaf grey-
+# blue (0.6–1.6 lost 4 of 100 rosettes on yellow soils in bench/other_renderer_rosettes.py;
+# bench seeds 0–3 unchanged within ±1 case)
+GAIN_MIN, GAIN_MAX = 0.8, 1.25
+
+
+def greenness(bgr: np.ndarray) -> np.ndarray:
+    """G* = (G − max(R, B)) / (B + G + R + 30): positive only where green dominates.
+
+    Live leaves reflect green more than red and blue; soil, stones, straw and dead leaves do not.
+    The +30 keeps sensor noise in dark shadows from looking green.
+    """
+    f = bgr if bgr.dtype == np.float32 else bgr.astype(np.float32)
+    if f.ndim == 3 and f.shape[2] == 3 and f.flags.c_contiguous:
+        b, g, r = cv2.split(f)  # copies: `_gstar` may overwrite them
+    else:
+        b, g, r = (np.ascontiguousarray(f[..., k]) for k in range(3))
+    return _gstar(b, g, r)
+
+
+def _gstar(b: np.ndarray, g: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """G* of float32 planes, computed in place (b and r are overwritten): a fresh full-size float
+    image can cost more in page faults (~2 µs per 4 kB page on the VM) than the arithmetic."""
+    num = cv2.max(r, b)
+    cv2.subtract(g, num, dst=num)  # G − max(R, B)
+    cv2.add(b, g, dst=b)
+    cv2.add(r, 30.0, dst=r)
+    cv2.add(b, r, dst=b)  # (B + G) + (R + 30)
+    return cv2.divide(num, b, dst=num)
+
+
+def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: np.ndarray | None = None,
+                     lab: bool = False) -> np.ndarray:
+    """Greenness after soil-referenced white balance (see `soil_gains`), float32 (h, w).
+
+    lab=False: G* (`greenness`). lab=True: −a*/100 of CIELAB, the green–red opponent axis, which
+    also ranks yellow-green leaves (G ≈ R) above soil and straw; used by the second look only.
+    """
+    if gains is None:
+        gains = soil_gains(bgr, inside)
+    if lab:
+        wb = _scaled(bgr, gains / 255.0)
+        np.clip(wb, 0.0, 1.0, out=wb)  # in place: fewer fresh full-size images (see below)
+        a = cv2.extractChannel(cv2.cvtColor(wb, cv2.COLOR_BGR2Lab), 1)
+        return np.multiply(a, np.float32(-0.01), out=a)
+    if bgr.dtype == np.uint8 and bgr.ndim == 3 and bgr.shape[2] == 3:
+        # split the 8-bit planes first and scale each: ~4× faster than scaling the 3-channel
+        # image to float and splitting that (same values)
+        return _gstar(*(cv2.multiply(p, float(k), dtype=cv2.CV_32F) for p, k in zip(cv2.split(bgr), gains)))
+    return greenness(_scaled(bgr, gains))
+
+
+def _scaled(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """float32 bgr × per-channel gains (OpenCV: ~4× faster than numpy's cast and multiply)."""
+    if bgr.ndim != 3 or bgr.shape[2] != 3:
+        return bgr.astype(np.float32) * gains
+    return cv2.multiply(bgr, (float(gains[0]), float(gains[1]), float(gains[2]), 0.0), dtype=cv2.CV_32F)
+
+
+def resize_down(src: np.ndarray, size: tuple[int, int], exact: bool = False) -> np.ndarray:
+    """`src` area-resampled down to `size` (w, h), by OpenCV's fast paths.
+
+    cv2.INTER_AREA at a non-integer ratio takes a slow general path (2–3 ms for a 0.3 MP window,
+    a tenth of the frame budget); at an exact integer ratio it is a fast box average. So a ratio
+    r ≥ AREA_MIN_RATIO is done as a bilinear resampling to k × `size`, k = max(2, ⌊r⌋) (a ratio
+    r/k within [0.75, 1.5)), followed by the k × k box average: every source pixel keeps a
+    weight, thin stems are not skipped (mean difference to INTER_AREA ≈ 0.1–0.2 grey levels).
+    Below it, bilinear resampling (after a light blur, see below) touches every source pixel.
+    Stage 1 of a bench frame: −1.8 ms median latency (paired, seed 0); the benches moved by
+    their resampling noise (seeds 0–3: wrong centres 29 → 28, detections 996 → 994 of 1020).
+    exact=True: plain INTER_AREA, for stage 2 (the plant crop, where the centre is located; the
+    fast path saved no measurable time there).
+    """
+    nw, nh = size
+    h, w = src.shape[:2]
+    if (nw, nh) == (w, h):
+        return src
+    if exact:
+        return cv2.resize(src, (nw, nh), interpolation=cv2.INTER_AREA)
+    r = min(w / nw, h / nh)
+    if r < AREA_MIN_RATIO:
+        # bilinear alone averages less than the area filter where samples fall on pixel centres:
+        # the soil's noise would rise (and so the 5 σ threshold); a 3 × 3 Gaussian of σ = 0.3 r
+        # restores INTER_AREA's noise level within ~5 %
+        return cv2.resize(cv2.GaussianBlur(src, (3, 3), 0.3 * r), (nw, nh), interpolation=cv2.INTER_LINEAR)
+    k = max(2, int(r))
+    if (w, h) != (k * nw, k * nh):
+        src = cv2.resize(src, (k * nw, k * nh), interpolation=cv2.INTER_LINEAR)
+    return cv2.resize(src, (nw, nh), interpolation=cv2.INTER_AREA)
+
+
+AREA_MIN_RATIO = 1.5  # downscale ratio from which `resize_down` box-averages
+
+
+def downscale(bgr: np.ndarray, max_px: int, exact: bool = False) -> np.ndarray:
+    """`bgr` itself if it has at most `max_px` pixels, else area-resampled down to that many."""
+    h, w = bgr.shape[:2]
+    g = max(1.0, math.sqrt(h * w / max_px))
+    if g <= 1.0:
+        return bgr
+    return resize_down(bgr, (max(1, round(w / g)), max(1, round(h / g))), exact)
+
+
+def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int, lab: bool = False,
+                 exact: bool = False) -> np.ndarray:
+    """Vegetation index of `bgr` on a coarser grid `size` (w, h), thin parts kept (max-pooling).
+
+    Averaging colours before judging greenness dilutes 1–2 px stems, petioles and grass blades
+    into the soil. The index is computed at an intermediate resolution (the input itself if it
+    has at most `mid_px` pixels, else downscaled to that), lightly smoothed against sensor noise,
+    then max-pooled (grey dilation over one output cell, then area resampling) to `size`.
+    """
+    nw, nh = size
+    mid = downscale(bgr, mid_px, exact)
+    vi = vegetation_index(mid, gains=gains, lab=lab)
+    # blur and dilate in place (same values): no further full-size temporaries
+    cv2.GaussianBlur(vi, (0, 0), 0.7, dst=vi)
+    f = mid.shape[1] / nw
+    if f <= 1.25:
+        return cv2.resize(vi, (nw, nh), interpolation=cv2.INTER_LINEAR) if (nw, nh) != (mid.shape[1], mid.shape[0]) else vi
+    k = int(round(f))
+    cv2.dilate(vi, np.ones((k, k), np.uint8), dst=vi)
+    return resize_down(vi, (nw, nh), exact)
