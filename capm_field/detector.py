@@ -190,14 +190,18 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             # be only the greenest part of a yellow-green plant, which −a* segments whole: take
             # the second look's choice when it scores clearly higher (bench seeds 0–3: wrong
             # 39 → 36, > 15 mm 110 → 106 for the small ones)
-            # (the second look's plant is chosen first; its centre is sought only if it is taken,
-            # by a full second-look run that repeats the choice: 22 of the 314 bench frames that
-            # get here, so resuming the first run was not worth its plumbing)
-            second: dict = {}
-            _detect(image_bgr, roi, None, vivid=True, first=second, win=win, choose_only=True)
-            if second.get("best", 0.0) > SMALL_GAIN * first["best"]:
-                det2 = _detect(image_bgr, roi, debug, vivid=True, win=win)
+            # (the second look's plant is chosen first; its centre is sought only if it is taken.
+            # Its debug entries join `debug` only then)
+            dbg2: dict | None = {} if debug is not None else None
+            choice = _choose(image_bgr, win, vivid=True, debug=dbg2)
+            if isinstance(choice, _Choice) and choice.best > SMALL_GAIN * first["best"]:
+                det2 = _locate(image_bgr, win, choice, dbg2)
                 if det2.reason is None:
+                    for k, v in (dbg2 or {}).items() if debug is not None else ():
+                        if isinstance(v, list):
+                            debug.setdefault(k, []).extend(v)
+                        else:
+                            debug[k] = v
                     return det2
         return det
     except Exception:  # the contract is "never raise": a bug must not stop a mission ...
@@ -257,6 +261,10 @@ class _Window:
     inside: np.ndarray  # ROI mask on the stage-1 grid
     n_in: int  # its pixel count
     gains: np.ndarray  # soil white balance of the first look (`soil_gains`)
+
+    def to_full(self, p: np.ndarray) -> np.ndarray:
+        """Stage-1 grid point (j, i) → full image (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
+        return np.array([self.x0 + (p[0] + 0.5) * self.sx - 0.5, self.y0 + (p[1] + 0.5) * self.sy - 0.5])
 
 
 def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
@@ -355,23 +363,46 @@ def _coherence(bgr: np.ndarray) -> float:
 
 
 def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: bool = False,
-            first: dict | None = None, win: _Window | None = None, choose_only: bool = False) -> Detection:
-    """One look (G* or, with `vivid`, CIELAB −a*). `first` receives the full-image boxes of the
-    candidates within 0.8 of the best score under "contenders" (those an "ambiguous" is about),
-    the best score under "best" and the chosen candidate's features under "feat".
-    `win`: the frame's `_window(img, roi_in)` when already made. `choose_only`: stop once the
-    plant is chosen (fills `first`; the Detection then has no pixel)."""
+            first: dict | None = None, win: _Window | None = None) -> Detection:
+    """One look (G* or, with `vivid`, CIELAB −a*): the plant is chosen (`_choose`), then its
+    centre is found (`_locate`). `first` receives the full-image boxes of the candidates within
+    0.8 of the best score under "contenders" (those an "ambiguous" is about), the best score
+    under "best" and the chosen candidate's features under "feat". `win`: the frame's
+    `_window(img, roi_in)` when already made."""
     if win is None:
         win = _window(img, roi_in)
         if isinstance(win, Detection):
             return win
-    H, W = img.shape[:2]
-    roi, x0, y0, x1, y1 = win.roi, win.x0, win.y0, win.x1, win.y1
+    choice = _choose(img, win, vivid, debug, first)
+    return choice if isinstance(choice, Detection) else _locate(img, win, choice, debug)
+
+
+@dataclass
+class _Choice:
+    """A look's plants, scored, before the centre of the best is sought (see `_choose`)."""
+
+    vivid: bool
+    gains: np.ndarray  # white balance of this look
+    thr: float  # index threshold and soil level of this look
+    soil_level: float
+    contrast: float
+    lab: np.ndarray  # component labels on the stage-1 grid
+    scored: list  # (score, stage-1 mask, area, full-image box or None, features), best first
+
+    @property
+    def best(self) -> float:
+        return self.scored[0][0]
+
+
+def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | None = None,
+            first: dict | None = None) -> _Choice | Detection:
+    """Stage 1 of one look: the vegetation mask of the window, its candidate plants judged and
+    scored (green mass × centrality). Detection "no_plant" when there is none; `first` as in
+    `_detect`."""
+    roi, x0, y0 = win.roi, win.x0, win.y0
     mid, small, sx, sy, inside, n_in = win.mid, win.small, win.sx, win.sy, win.inside, win.n_in
 
-    # window pixel (i, j) of `small` ↔ full image (x0 + (j + 0.5)·sx − 0.5, y0 + (i + 0.5)·sy − 0.5)
-    def to_full(p: np.ndarray) -> np.ndarray:
-        return np.array([x0 + (p[0] + 0.5) * sx - 0.5, y0 + (p[1] + 0.5) * sy - 0.5])
+    to_full = win.to_full  # window pixel (i, j) of `small` → full image
 
     # ---- vegetation mask
     gains = win.gains ** VIVID_WB if vivid else win.gains
@@ -477,13 +508,23 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     if not scored:
         return Detection(None, 0.0, "no_plant")
     scored.sort(key=lambda t: -t[0])
-    best_score, gmask, _, _, best_f = scored[0]
+    best_score, best_f = scored[0][0], scored[0][4]
     if first is not None:
         first["contenders"] = [t[3] for t in scored if t[3] is not None and t[0] >= AMBIGUOUS * best_score]
         first["best"] = best_score  # vegetation area × centrality (see above), stage-1 pixels
         first["feat"] = best_f
-    if choose_only:
-        return Detection(None, 0.0, "no_plant" if best_score <= 0 else None)
+    return _Choice(vivid, gains, thr, soil_level, contrast, lab, scored)
+
+
+def _locate(img: np.ndarray, win: _Window, choice: _Choice, debug: dict | None = None) -> Detection:
+    """Stage 2 of one look: the centre of the best-scored plant of `choice` (joined with near-equal
+    candidates close to it), whether it is cut by the border or ambiguous, and a confidence."""
+    H, W = img.shape[:2]
+    roi, x0, y0, x1, y1, sx, sy = win.roi, win.x0, win.y0, win.x1, win.y1, win.sx, win.sy
+    vivid, gains, thr, soil_level, contrast, lab, scored = (choice.vivid, choice.gains, choice.thr, choice.soil_level,
+                                                            choice.contrast, choice.lab, choice.scored)
+    best_score, gmask = scored[0][0], scored[0][1]
+    to_full = win.to_full
     if debug is not None:
         full = np.zeros((H, W), np.uint8)
         lbl = np.where(gmask, 2, (lab > 0).astype(np.uint8)).astype(np.uint8)
