@@ -197,11 +197,8 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             if isinstance(choice, _Choice) and choice.best > SMALL_GAIN * first["best"]:
                 det2 = _locate(image_bgr, win, choice, dbg2)
                 if det2.reason is None:
-                    for k, v in (dbg2 or {}).items() if debug is not None else ():
-                        if isinstance(v, list):
-                            debug.setdefault(k, []).extend(v)
-                        else:
-                            debug[k] = v
+                    if debug is not None and dbg2 is not None:
+                        _merge_debug(debug, dbg2)
                     return det2
         return det
     except Exception:  # the contract is "never raise": a bug must not stop a mission ...
@@ -219,6 +216,15 @@ SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below wh
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it
 PALE_G90 = 0.05  # first choice's G* p90 below which the second look also runs (+8 % of the bench's
 # frames; bench and photo-like benches: 6 answers ≥ 0.1 S better, 1 worse; always: +10 ms median)
+
+
+def _merge_debug(debug: dict, extra: dict) -> None:
+    """`extra`'s lists (components, candidates) appended to `debug`'s; its other entries replace them."""
+    for k, v in extra.items():
+        if isinstance(v, list):
+            debug.setdefault(k, []).extend(v)
+        else:
+            debug[k] = v
 
 
 def _in_boxes(uv, boxes: list, grow: float = 0.2) -> bool:

@@ -693,6 +693,12 @@ def test_pale_seedling_is_preferred_to_a_smaller_vivid_speck() -> None:
     assert first.reason is None and np.hypot(*(np.array(first.pixel) - speck)) < 10, first
     det = detect_centre(img, roi)
     assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 8, det
+    # with debug: the same answer, and the second look's components follow the first look's
+    dbg: dict = {}
+    assert detect_centre(img, roi, debug=dbg) == det
+    looks = [comp["vivid"] for comp in dbg["comps"]]
+    assert looks == sorted(looks) and looks[0] is False and looks[-1] is True, looks
+    assert dbg["method"] and dbg["mask_full"].shape == img.shape[:2]
 
 
 def _lens_rosette(img: np.ndarray, rng: np.random.Generator, c: np.ndarray, L: float, col) -> None:
