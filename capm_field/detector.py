@@ -438,8 +438,8 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
     for k in comps:
         l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
         sub = lab[t0:t0 + h0, l0:l0 + w0] == k
-        f = candidate_features(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig, cen_s, rad_s,
-                       origin=(l0, t0))
+        f = candidate_features(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig,
+                               cen_s, rad_s, origin=(l0, t0))
         f["area_frac"] = f["area"] / n_in
         if vivid and contrast_band(f):
             f["lc"], f["core"] = _local_contrast(img, sub, (l0, t0), win, gains, thr, soil_level)
@@ -754,7 +754,7 @@ def _local_contrast(img: np.ndarray, sub: np.ndarray, origin: tuple[int, int], w
     if int(ring.sum()) < 8:
         return 0.0, core
     rv = vf[ring]
-    return (float(np.median(vf[m > 0])) - float(np.median(rv))) / max(float(rv.std()), 1e-4), core
+    return (median(vf[m > 0]) - median(rv)) / max(float(rv.std()), 1e-4), core
 
 
 GROUP_GAP = 0.35  # × the group's diameter: largest gap a component may be joined across

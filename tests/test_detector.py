@@ -1182,15 +1182,40 @@ def test_closed_form_elongation_matches_the_covariance_eigenvalues() -> None:
     assert math.isclose(elongation(np.arange(50), np.zeros(50, np.int64)), math.sqrt((np.var(np.arange(50), ddof=1) + 0.25) / 0.25))
 
 
-@settings(max_examples=200, deadline=None)
-@given(v=hnp.arrays(np.float32, st.integers(1, 60), elements=st.floats(-1.0, 1.0, width=32)))
-def test_median_above_zero_needs_half_the_values_above_zero(v) -> None:
-    """`_threshold` skips the Otsu classes' percentiles when under half of the upper class is > 0,
-    because its median cannot be > 0 then: the property it relies on."""
-    from capm_field.order_stats import median
+def _threshold_reference(v: np.ndarray) -> tuple[float, float, float]:
+    """`detector._threshold` in plain numpy, without its shortcuts (the oracle of the test below)."""
+    from capm_field.detector import BIG_PLANT, BIG_SEP, THR_FLOOR, THR_SIGMAS
 
-    if median(v) > 0:
-        assert 2 * np.count_nonzero(v > 0) >= len(v)
+    lo, med, p90, hi = (float(x) for x in np.percentile(v, [0.5, 50, 90, 99.5]))
+    sig = max((p90 - med) / 1.28, 0.004)
+    if p90 > med and hi > lo:
+        q = np.clip((v - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+        t = lo + cv2.threshold(q.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)[0] * (hi - lo) / 255.0
+        low, up = v[v <= t], v[v > t]
+        if 1.0 - len(low) / len(v) >= BIG_PLANT and len(low) > 100:
+            m_l, p_l = (float(x) for x in np.percentile(low, [50, 90]))
+            s_l = max((p_l - m_l) / 1.28, 0.004)
+            m_u = float(np.median(up))
+            if m_u > 0 and m_u - m_l >= BIG_SEP * s_l:
+                med, sig = m_l, s_l
+    thr = float(np.clip(med + THR_SIGMAS * sig, THR_FLOOR, 0.10))
+    above = v[v > thr]
+    return thr, med, float(np.median(above) - med) if len(above) else 0.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(150, 3000), share=st.floats(0.0, 0.6),
+       soil=st.floats(-0.08, 0.02), green=st.floats(-0.05, 0.3))
+def test_threshold_equals_its_plain_numpy_definition(seed, n, share, soil, green) -> None:
+    """`_threshold` (one-partition percentiles; the Otsu classes' percentiles skipped when under
+    half of the upper class is > 0) gives the plain numpy definition's values bit for bit, on soils
+    with a green class of any share and level (also one below zero, where the skip applies)."""
+    from capm_field.detector import _threshold
+
+    rng = np.random.default_rng(seed)
+    k = int(share * n)
+    v = np.r_[rng.normal(soil, 0.01, n - k), rng.normal(green, 0.02, k)].astype(np.float32)
+    assert _threshold(v) == _threshold_reference(v)
 
 
 @settings(max_examples=100, deadline=None)
