@@ -28,7 +28,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal, Union
 
 import cv2
@@ -72,12 +72,17 @@ class Roi:
 
     `conic` is normalised so the ellipse centre gives a negative value. `ellipse()` returns the
     same region as OpenCV's ((cu, cv), (full width, full height), angle in degrees).
+    `ground`, when the camera pose is known (`roi_from_troi`): the homography pixel → ground point
+    in TROI radii about the TROI centre (the TROI is the unit disc). With it the detector measures
+    a candidate's distance from X_w and its area on the ground, not in the image: under an oblique
+    view a plant's pixel area changes by up to ~1.7× across the ROI.
     """
 
     conic: np.ndarray
+    ground: np.ndarray | None = field(default=None, compare=False)
 
     @classmethod
-    def from_conic(cls, C: np.ndarray) -> "Roi":
+    def from_conic(cls, C: np.ndarray, ground: np.ndarray | None = None) -> "Roi":
         C = np.asarray(C, float).reshape(3, 3)
         C = 0.5 * (C + C.T)
         M = C[:2, :2]
@@ -91,7 +96,11 @@ class Roi:
             C = -C
         if (np.r_[c, 1.0] @ C @ np.r_[c, 1.0]) >= 0:
             raise ValueError("conic has no interior")
-        return cls(C)
+        if ground is not None:
+            ground = np.asarray(ground, float).reshape(3, 3)
+            if not np.all(np.isfinite(ground)) or abs(np.linalg.det(ground)) < 1e-300:
+                raise ValueError("ground homography is singular")
+        return cls(C, ground)
 
     @classmethod
     def from_ellipse(cls, centre: tuple[float, float], semi_axes: tuple[float, float], angle_deg: float = 0.0) -> "Roi":
@@ -134,6 +143,24 @@ class Roi:
         c, ax, ang = self.params()
         return (float(c[0]), float(c[1])), (float(2 * ax[0]), float(2 * ax[1])), ang
 
+    def on_ground(self, uv) -> tuple[float, float] | None:
+        """For pixel uv: (distance from the TROI centre in TROI radii, ground area of a pixel there
+        ÷ that at the TROI centre's image), from `ground`; None without it or off the ground."""
+        if self.ground is None:
+            return None
+        q = self.ground @ np.array([float(uv[0]), float(uv[1]), 1.0])
+        w0 = self._ground_w0
+        if not (q[2] * w0 > 0):  # behind the camera or on the horizon
+            return None
+        # Jacobian of a homography: |det G| / w³, so the ratio to the centre's is (w0 / w)³
+        return math.hypot(q[0] / q[2], q[1] / q[2]), (w0 / q[2]) ** 3
+
+    @functools.cached_property
+    def _ground_w0(self) -> float:
+        p0 = np.linalg.solve(self.ground, np.array([0.0, 0.0, 1.0]))  # image of the TROI centre
+        p0 = p0 / p0[2]
+        return float(self.ground[2] @ p0)
+
     def contains(self, uv: np.ndarray, scale: float = 1.0) -> np.ndarray:
         """Whether pixels (N, 2) lie inside the ellipse grown about its centre by `scale`."""
         c, _, _ = self.params()
@@ -148,9 +175,14 @@ RoiLike = Union[Roi, np.ndarray, tuple, None]
 
 
 def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, radius: float) -> Roi:
-    """R^TROI_I: the image of the TROI ground disc (centre X_w, radius r_w) seen from T_field_cam."""
-    C = camera.disc_conic(np.asarray(T_field_cam, float), np.asarray(centre_xy, float), np.asarray(radius, float))
-    return Roi.from_conic(C)
+    """R^TROI_I: the image of the TROI ground disc (centre X_w, radius r_w) seen from T_field_cam,
+    with the pixel → ground map in TROI radii (`Roi.ground`)."""
+    T = np.asarray(T_field_cam, float)
+    C = camera.disc_conic(T, np.asarray(centre_xy, float), np.asarray(radius, float))
+    x0, y0 = (float(v) for v in np.asarray(centre_xy, float).reshape(2))
+    r = float(radius)
+    N = np.array([[r, 0.0, x0], [0.0, r, y0], [0.0, 0.0, 1.0]])  # TROI radii → field
+    return Roi.from_conic(C, np.linalg.inv(camera.homography(T) @ N))
 
 
 def ground_centre(camera: PinholeCamera, T_field_cam: np.ndarray, det: Detection) -> np.ndarray | None:
@@ -179,9 +211,14 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             # chlorotic plants, warm light) reflect nearly as much red as green, so G − max(R, B)
             # leaves them at the soil's level; only vivid candidates count (soil tints come up too)
             # (also after an "ambiguous" first look: a pale plant split in two by G* is one in −a*)
-            det2 = _detect(image_bgr, roi, debug, vivid=True, win=win)
-            if det.reason == "ambiguous" and det2.reason is None and not _in_boxes(det2.pixel, first.get("contenders", [])):
-                return det  # the second look chose something else than the plants in question
+            second: dict = {}
+            det2 = _detect(image_bgr, roi, debug, vivid=True, first=second, win=win)
+            if (det.reason == "ambiguous" and det2.reason is None and second["best"] <= SMALL_GAIN * first["best"]
+                    and not _boxes_meet([second["box"]], first["contenders"])):
+                # the second look chose something else than the plants in question, and nothing
+                # clearly larger (a vivid speck) (a clover's centre lies between its leaflets'
+                # boxes: the chosen plant's box must meet one, not hold the centre)
+                return det
             if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
                 return det2
         elif det.reason is None and (first["best"] < SMALL_PLANT * win.n_in or first["feat"]["g_p90"] < PALE_G90):
@@ -193,8 +230,12 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             # (the second look's plant is chosen first; its centre is sought only if it is taken.
             # Its debug entries join `debug` only then)
             dbg2: dict | None = {} if debug is not None else None
-            choice = _choose(image_bgr, win, vivid=True, debug=dbg2)
-            if isinstance(choice, _Choice) and choice.best > SMALL_GAIN * first["best"]:
+            second = {}
+            choice = _choose(image_bgr, win, vivid=True, debug=dbg2, first=second)
+            if isinstance(choice, _Choice) and (choice.best > SMALL_GAIN * first["best"] or (
+                    # or the same plant, segmented far more completely (yellow-green parts, petioles)
+                    second["feat"]["area"] >= WHOLE_GAIN * first["feat"]["area"]
+                    and _boxes_meet([second["box"]], [first["box"]]))):
                 det2 = _locate(image_bgr, win, choice, dbg2)
                 if det2.reason is None:
                     if debug is not None and dbg2 is not None:
@@ -213,7 +254,9 @@ SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below wh
 # +5 ms median latency, 0.003 +1.7 ms; session 9, second look choosing before locating: 0.01 gave
 # 3 fewer wrong and p90 −0.3 to −1.1 mm on seeds 0–3, +3 ms median (paired) — the −a* index alone
 # costs ~4 ms a frame; not taken while the median is at the 20 ms target)
-SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it
+SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it ...
+WHOLE_GAIN = 1.5  # ... or be the same plant (boxes meet) with this × its stage-1 area (bench seeds 0–3:
+# 47 more frames take it, 12 ≥ 2 mm better, 3 worse, wrong 2 → 0; 1.3: 16 better, 8 worse)
 PALE_G90 = 0.05  # first choice's G* p90 below which the second look also runs (+8 % of the bench's
 # frames; bench and photo-like benches: 6 answers ≥ 0.1 S better, 1 worse; always: +10 ms median)
 
@@ -227,15 +270,10 @@ def _merge_debug(debug: dict, extra: dict) -> None:
             debug[k] = v
 
 
-def _in_boxes(uv, boxes: list, grow: float = 0.2) -> bool:
-    """Whether pixel `uv` lies in one of the boxes (x0, y0, x1, y1), each grown by `grow` of its size."""
-    if uv is None:
-        return False
-    for x0, y0, x1, y1 in boxes:
-        mx, my = grow * (x1 - x0), grow * (y1 - y0)
-        if x0 - mx <= uv[0] <= x1 + mx and y0 - my <= uv[1] <= y1 + my:
-            return True
-    return False
+def _boxes_meet(a: list, b: list) -> bool:
+    """Whether a box (x0, y0, x1, y1) of `a` overlaps one of `b` (None: no box)."""
+    return any(ax0 <= bx1 and bx0 <= ax1 and ay0 <= by1 and by0 <= ay1
+               for ax0, ay0, ax1, ay1 in filter(None, a) for bx0, by0, bx1, by1 in filter(None, b))
 
 
 def _as_roi(roi: RoiLike) -> Roi | None:
@@ -493,6 +531,9 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
             else:
                 f["elong_full"] = 1.0
             cut = bool(np.any(gm & rim))
+            g = roi.on_ground(to_full(np.array([xs.mean(), ys.mean()]))) if roi is not None else None
+            if g is not None:  # distance from X_w and green area on the ground, not in the image
+                f["d"], f["mass_full"] = g[0], f["mass_full"] * g[1]
             f["score"] = f["mass_full"] * math.exp(-0.5 * (f["d"] / CENTRAL_SIGMA) ** 2) * (0.33 if cut else 1.0)
             # a straight thin piece at full resolution is straw, not a weed (measured: weeds ≤ 4.5)
             if f["elong_full"] > STRAW_ELONG_FULL and not green_blade(f):
@@ -519,6 +560,7 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
         first["contenders"] = [t[3] for t in scored if t[3] is not None and t[0] >= AMBIGUOUS * best_score]
         first["best"] = best_score  # vegetation area × centrality (see above), stage-1 pixels
         first["feat"] = best_f
+        first["box"] = scored[0][3]  # the chosen plant's full-image box (None if its score is 0)
     return _Choice(vivid, gains, thr, soil_level, contrast, lab, scored)
 
 
