@@ -153,7 +153,7 @@ class Roi:
         if not (q[2] * w0 > 0):  # behind the camera or on the horizon
             return None
         # Jacobian of a homography: |det G| / w³, so the ratio to the centre's is (w0 / w)³
-        return math.hypot(q[0] / q[2], q[1] / q[2]), (w0 / q[2]) ** 3
+        return math.hypot(q[0] / q[2], q[1] / q[2]), float((w0 / q[2]) ** 3)
 
     @functools.cached_property
     def _ground_w0(self) -> float:
@@ -182,7 +182,10 @@ def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, rad
     x0, y0 = (float(v) for v in np.asarray(centre_xy, float).reshape(2))
     r = float(radius)
     N = np.array([[r, 0.0, x0], [0.0, r, y0], [0.0, 0.0, 1.0]])  # TROI radii → field
-    return Roi.from_conic(C, np.linalg.inv(camera.homography(T) @ N))
+    HN = camera.homography(T) @ N
+    # (a camera in the ground plane has no ground map: the detector then keeps pixel measures)
+    ground = np.linalg.inv(HN) if np.isfinite(HN).all() and abs(np.linalg.det(HN)) > 1e-12 * np.abs(HN).max() ** 3 else None
+    return Roi.from_conic(C, ground)
 
 
 def ground_centre(camera: PinholeCamera, T_field_cam: np.ndarray, det: Detection) -> np.ndarray | None:
