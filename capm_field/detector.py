@@ -259,7 +259,7 @@ SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below wh
 # costs ~4 ms a frame; not taken while the median is at the 20 ms target)
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it ...
 WHOLE_GAIN = 1.5  # ... or be the same plant (boxes meet) with this × its stage-1 area (bench seeds 0–3:
-# 47 more frames take it, 12 ≥ 2 mm better, 3 worse, wrong 2 → 0; 1.3: 16 better, 8 worse)
+# wrong 20 → 18, 11 answers ≥ 2 mm better, 3 worse; 1.3, replayed offline: 16 better, 8 worse)
 PALE_G90 = 0.05  # first choice's G* p90 below which the second look also runs (+8 % of the bench's
 # frames; bench and photo-like benches: 6 answers ≥ 0.1 S better, 1 worse; always: +10 ms median)
 
