@@ -182,9 +182,10 @@ def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, rad
     x0, y0 = (float(v) for v in np.asarray(centre_xy, float).reshape(2))
     r = float(radius)
     N = np.array([[r, 0.0, x0], [0.0, r, y0], [0.0, 0.0, 1.0]])  # TROI radii → field
-    HN = camera.homography(T) @ N
-    # (a camera in the ground plane has no ground map: the detector then keeps pixel measures)
-    ground = np.linalg.inv(HN) if np.isfinite(HN).all() and abs(np.linalg.det(HN)) > 1e-12 * np.abs(HN).max() ** 3 else None
+    try:
+        ground = np.linalg.inv(camera.homography(T) @ N)
+    except np.linalg.LinAlgError:  # a camera in the ground plane: the detector keeps pixel measures
+        ground = None
     return Roi.from_conic(C, ground)
 
 
@@ -534,15 +535,16 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
             else:
                 f["elong_full"] = 1.0
             cut = bool(np.any(gm & rim))
-            g = roi.on_ground(to_full(np.array([xs.mean(), ys.mean()]))) if roi is not None else None
-            if g is not None:  # distance from X_w and green area on the ground, not in the image
+            cf = to_full(np.array([xs.mean(), ys.mean()]))  # centroid in the full image
+            g = roi.on_ground(cf) if roi is not None else None
+            if g is not None:  # distance from X_w and green area on the ground (in X_w's pixels), not in the image
                 f["d"], f["mass_full"] = g[0], f["mass_full"] * g[1]
             f["score"] = f["mass_full"] * math.exp(-0.5 * (f["d"] / CENTRAL_SIGMA) ** 2) * (0.33 if cut else 1.0)
             # a straight thin piece at full resolution is straw, not a weed (measured: weeds ≤ 4.5)
             if f["elong_full"] > STRAW_ELONG_FULL and not green_blade(f):
                 f["score"] = 0.0
             # the TROI holds the weed's centre (the margin is for overhanging leaves only)
-            if roi is not None and not roi.contains(to_full(np.array([xs.mean(), ys.mean()]))[None], 1.0)[0]:
+            if roi is not None and not roi.contains(cf[None], 1.0)[0]:
                 f["score"] = 0.0
             if f["score"] > 0 and first is not None:
                 box = (fx0, fy0, fx1, fy1)

@@ -577,7 +577,7 @@ def test_roi_ground_map_gives_troi_distance_and_relative_pixel_area(tilt, yaw, h
     t = math.radians(tilt)
     z = np.array([math.sin(t) * math.cos(yaw), math.sin(t) * math.sin(yaw), -math.cos(t)])
     T = pose_from_axis(np.array([0.1, -0.2, h]), z, 0.3)
-    X, r = np.array([0.1, -0.2]) + h * math.tan(t) * z[:2] / max(math.hypot(*z[:2]), 1e-9), 0.2
+    X, r = np.array([0.1, -0.2]) + h * math.tan(t) * z[:2] / max(math.hypot(*z[:2]), 1e-9), 0.2  # under the optical axis
     roi = roi_from_troi(CAM, T, X, r)
     p = np.array([u * CAM.width, v * CAM.height])
 
