@@ -125,6 +125,19 @@ def _large_and_coloured(f: dict) -> bool:
     return big or f["area_frac"] >= HUGE_FRAC and f["gb"] >= HUGE_GB and f["sat"] >= HUGE_SAT
 
 
+def _cyan_green(f: dict) -> bool:
+    """Second look: blue-green leaves that the soil white balance turned cyan (a reddish soil's
+    gains lift blue, and cool light or a glaucous bloom already puts B ≈ G): blue at or just above
+    green (gb ≥ CYAN_GB), but far greener than red (gr ≥ CYAN_GR) and strongly saturated
+    (≥ CYAN_SAT) well above the soil (≥ CYAN_SIGMA σ). −a* segments such leaves whole; the teal
+    rule wants G above B. No soil, stone or straw candidate of the bench reaches gr 0.15 with
+    saturation 0.45 (bluish stones under a white balance that lifts blue: gr ≤ 0.08, sat ≤ 0.35)."""
+    return f["gb"] >= CYAN_GB and f["gr"] >= CYAN_GR and f["sat"] >= CYAN_SAT and f["gsig"] >= CYAN_SIGMA
+
+
+CYAN_GB, CYAN_GR, CYAN_SAT, CYAN_SIGMA = -0.06, 0.15, 0.45, 8.0
+
+
 def _raw_blue_green(f: dict) -> bool:
     """Second look: bluish-green leaves of middling colour (gb 0.04–0.08, saturation 0.22–0.30,
     below the vivid and teal rules) that are green above both red and blue in the camera's own
@@ -165,7 +178,7 @@ def plant_like(f: dict, vivid: bool = False) -> bool:
         return True
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not _large_and_coloured(f) and not _stands_out(f):
-        if _raw_blue_green(f):
+        if _raw_blue_green(f) or _cyan_green(f):
             return True
         # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
         return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR

@@ -225,7 +225,8 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
                 return det
             if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
                 return det2
-        elif det.reason is None and (first["best"] < SMALL_PLANT * win.n_in or first["feat"]["g_p90"] < PALE_G90):
+        elif det.reason is None and (first["best"] < SMALL_PLANT * win.n_in or first["feat"]["g_p90"] < PALE_G90
+                                     or first["feat"]["gsig"] < FAINT_SIGMA):
             # a small first choice (seedling-sized) may be a vivid speck while the weed is a pale
             # seedling only the second look segments; a first choice of low absolute greenness may
             # be only the greenest part of a yellow-green plant, which −a* segments whole: take
@@ -261,6 +262,8 @@ SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below wh
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it ...
 WHOLE_GAIN = 1.5  # ... or be the same plant (boxes meet) with this × its stage-1 area (bench seeds 0–3:
 # wrong 20 → 18, 11 answers ≥ 2 mm better, 3 worse; 1.3, replayed offline: 16 better, 8 worse)
+FAINT_SIGMA = 6.0  # first choice's G* p90 over the soil, in soil σ, below which the second look also runs: a
+# blue-green plant on a reddish soil, whose white balance lifts blue, clears G*'s 5 σ in one leaf only
 PALE_G90 = 0.05  # first choice's G* p90 below which the second look also runs (+8 % of the bench's
 # frames; bench and photo-like benches: 6 answers ≥ 0.1 S better, 1 worse; always: +10 ms median)
 
