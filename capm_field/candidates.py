@@ -19,11 +19,14 @@ from .order_stats import elongation, percentile, row_medians
 def green_blade(f: dict) -> bool:
     """A long straight candidate that is no straw: green above red in the camera's own colours
     and after the white balance (a single grass blade, two cotyledons in a line: elongation 5–6
-    at full resolution). Bench straw and other long non-weed pieces: min(g_raw, gr) ≤ 0.044."""
-    return min(f["g_raw"], f["gr"]) >= BLADE_GREEN
+    at full resolution). Bench straw and other long non-weed pieces: min(g_raw, gr) ≤ 0.044.
+    A teal blade or pair of cotyledons (blue near green: g_raw small) passes on gr ≥ TEAL_GR
+    with G still above max(R, B) in the camera's colours; straw is yellow (gr ≤ 0)."""
+    return min(f["g_raw"], f["gr"]) >= BLADE_GREEN or (f["gr"] >= TEAL_GR and f["g_raw"] >= BLADE_TEAL_RAW)
 
 
 BLADE_GREEN = 0.06
+BLADE_TEAL_RAW = 0.01  # g_raw of a teal blade: other renderer's bluish-green cotyledons 0.02–0.04
 STRAW_ELONG_FULL = 5.0  # √(λ1/λ2) of the full-resolution mask; weeds measured ≤ 4.5 (but see `green_blade`)
 STRAW_ELONG = 6.5  # same on the stage-1 grid (weeds measured ≤ 5.9 but one merged with straw)
 STRAW_RAW = -0.012  # g_raw below which a long straight piece is straw (measured: straw −0.04 … −0.010, olive

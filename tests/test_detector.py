@@ -218,6 +218,26 @@ def test_cyan_tinted_seedling_on_reddish_soil(roi, monkeypatch) -> None:
     assert detect_centre(img, roi).reason == "no_plant"
 
 
+@pytest.mark.parametrize("seed", [0, 3])
+def test_teal_leaves_in_a_line_are_no_straw(seed, monkeypatch) -> None:
+    """Two narrow teal leaves meeting tip to tip (elongation > 5, like straw): blue near green
+    keeps G − max(R, B) at ~0.03, below the green-blade rule's 0.06, but the pair is far greener
+    than red (straw is yellow: G ≤ R). Found; without the teal clause the straw rule drops it."""
+    import capm_field.candidates as cand
+
+    rng = np.random.default_rng(seed)
+    img = _soil(rng, colour=(110, 112, 115))
+    c = np.array([320.0, 240.0])
+    for a in (0.4 + seed, 0.4 + seed + math.pi):
+        m = c + 44.0 * np.array([math.cos(a), math.sin(a)])
+        cv2.ellipse(img, (int(m[0]), int(m[1])), (44, 8), math.degrees(a), 0, 360, (130, 140, 60), -1, cv2.LINE_AA)
+    det = detect_centre(img)
+    # found; the centre of a pair in a line is loose (all its leaf-axis votes lie on one line)
+    assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 0.2 * 176, det
+    monkeypatch.setattr(cand, "BLADE_TEAL_RAW", 9.0)
+    assert detect_centre(img).reason == "no_plant"
+
+
 def test_faint_first_choice_gets_the_second_look(monkeypatch) -> None:
     """A close-up (2 S square round the centre) of a blue-green lobed rosette on reddish soil
     (bench/other_renderer_plants.py, seed 7 case 39): after the soil white balance only one leaf
