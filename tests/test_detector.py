@@ -238,6 +238,39 @@ def test_teal_leaves_in_a_line_are_no_straw(seed, monkeypatch) -> None:
     assert detect_centre(img).reason == "no_plant"
 
 
+@pytest.mark.parametrize("seed", [0, 3])
+def test_uneven_trefoils_join_within_a_troi(seed, monkeypatch) -> None:
+    """A clover whose petioles do not show: one large trefoil and two of 0.30–0.36 its area, too far
+    apart for stage 1 to group, close enough to be one plant. Within a ROI they join the large one
+    (PART_MERGE), so the centre is sought between all three; without the rule, on the large one."""
+    import capm_field.detector as det_mod
+
+    rng = np.random.default_rng(seed)
+    img = _soil(rng)
+    c = np.array([320.0, 240.0])
+    a0 = 0.3
+    mids = []  # middle leaflets' centres
+    for k, (dist, s) in enumerate(((66, 40), (54, 24), (52, 22))):
+        a = a0 + k * 2 * np.pi / 3
+        u = np.array([math.cos(a), math.sin(a)])
+        _trefoil(img, c + dist * u, a, s, (50, 140, 60))
+        mids.append(c + (dist + 0.55 * s) * u)
+    roi = Roi.from_ellipse((330, 235), (150, 150))
+
+    def chosen(dbg: dict) -> list[bool]:  # whether each trefoil lies in the plant located
+        return [bool(dbg["mask_full"][int(m[1]), int(m[0])] == 2) for m in mids]
+
+    dbg: dict = {}
+    det = detect_centre(img, roi, debug=dbg)
+    assert det.reason is None and chosen(dbg) == [True, True, True], det
+    d_all = np.hypot(*(np.array(det.pixel) - c))
+    monkeypatch.setattr(det_mod, "PART_MERGE", 9.0)
+    dbg = {}
+    det = detect_centre(img, roi, debug=dbg)
+    assert chosen(dbg) == [True, False, False]
+    assert np.hypot(*(np.array(det.pixel) - c)) > d_all + 10
+
+
 def test_faint_first_choice_gets_the_second_look(monkeypatch) -> None:
     """A close-up (2 S square round the centre) of a blue-green lobed rosette on reddish soil
     (bench/other_renderer_plants.py, seed 7 case 39): after the soil white balance only one leaf
