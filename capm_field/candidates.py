@@ -21,7 +21,8 @@ def green_blade(f: dict) -> bool:
     and after the white balance (a single grass blade, two cotyledons in a line: elongation 5–6
     at full resolution). Bench straw and other long non-weed pieces: min(g_raw, gr) ≤ 0.044.
     A teal blade or pair of cotyledons (blue near green: g_raw small) passes on gr ≥ TEAL_GR
-    with G still above max(R, B) in the camera's colours; straw is yellow (gr ≤ 0)."""
+    with G still above max(R, B) in the camera's colours: straw is yellow (bench seeds 0–3, long
+    non-weed candidates at full resolution: gr ≤ 0.035)."""
     return min(f["g_raw"], f["gr"]) >= BLADE_GREEN or (f["gr"] >= TEAL_GR and f["g_raw"] >= BLADE_TEAL_RAW)
 
 
