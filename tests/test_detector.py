@@ -222,7 +222,8 @@ def test_cyan_tinted_seedling_on_reddish_soil(roi, monkeypatch) -> None:
 def test_teal_leaves_in_a_line_are_no_straw(seed, monkeypatch) -> None:
     """Two narrow teal leaves meeting tip to tip (elongation > 5, like straw): blue near green
     keeps G − max(R, B) at ~0.03, below the green-blade rule's 0.06, but the pair is far greener
-    than red (straw is yellow: G ≤ R). Found; without the teal clause the straw rule drops it."""
+    than red (gr ~0.2; long non-weed pieces on the bench ≤ 0.035). Found; without the teal
+    clause the straw rule drops it."""
     import capm_field.candidates as cand
 
     rng = np.random.default_rng(seed)
@@ -233,7 +234,8 @@ def test_teal_leaves_in_a_line_are_no_straw(seed, monkeypatch) -> None:
         cv2.ellipse(img, (int(m[0]), int(m[1])), (44, 8), math.degrees(a), 0, 360, (130, 140, 60), -1, cv2.LINE_AA)
     det = detect_centre(img)
     # found; the centre of a pair in a line is loose (all its leaf-axis votes lie on one line)
-    assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 0.2 * 176, det
+    length = 4 * 44.0  # tip to tip
+    assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 0.2 * length, det
     monkeypatch.setattr(cand, "BLADE_TEAL_RAW", 9.0)
     assert detect_centre(img).reason == "no_plant"
 
