@@ -39,6 +39,7 @@ BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
 
 PET_MINLEN = 0.07  # of the plant size
 PET_K = 1.0  # ridge threshold, × the 99th percentile of the ridge response on the soil
+PET_RIM = 2.0  # px: a piece whose median distance from the broad parts is this or less runs along a leaf's rim
 PET_LEAF_GAP = 0.10  # of the plant size: farthest a stalk piece may stay from every broad part
 
 
@@ -49,12 +50,15 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     their leaf. Thin parts (mask minus its opening by a disc ~2.5 % of the plant size) are
     split into pieces; each elongated piece (length ≥ PET_MINLEN of the size, ≥ 3× longer than wide)
     gives a line (principal axis of its second moments) if it comes within PET_LEAF_GAP of a
-    broad part (a stalk carries a leaf). Stalks start at the centre, so the
+    broad part (a stalk carries a leaf) and does not run along one (median distance from the
+    broad parts > PET_RIM px: a ridge just outside a leaf's edge). Stalks start at the centre, so the
     lines of two stalks cross there, beyond one end of each piece (a stalk's start may be
     hidden under young leaves), whereas a leaf junction is on one stalk only. Every crossing
     of two non-parallel lines near an end of both pieces is a hypothesis; it is supported by
     the pieces whose line passes within 4 % of the size and whose nearer end is within reach;
     the best-supported hypothesis (≥ 2 pieces) is refined by least squares over its support.
+    It must lie in the plant's hull and within 0.12 × size of the plant or of a stalk piece
+    (petioles seen only as index ridges may be long).
     """
     if int(plant.sum()) < 20:
         return None
@@ -81,11 +85,14 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     # blade or straw grouped with the plant, and its line crosses the real stalks anywhere
     off_leaf = cv2.distanceTransform((~broad).astype(np.uint8), cv2.DIST_L2, 3) if broad.any() else None
     segs = []  # (centre point, unit direction, half-length, weight)
+    used = []  # labels of the stalk pieces
     for c in range(1, n):
         if stats[c, cv2.CC_STAT_AREA] < 0.04 * size:
             continue
-        if off_leaf is not None and float(off_leaf[lab == c].min()) > max(PET_LEAF_GAP * size, 2.0):
-            continue
+        if off_leaf is not None:
+            off = off_leaf[lab == c]
+            if float(off.min()) > max(PET_LEAF_GAP * size, 2.0) or percentile(off, 50) <= PET_RIM:
+                continue  # off every leaf (a blade or straw), or a ridge along a leaf's rim
         yy, xx = np.nonzero(lab[stats[c, cv2.CC_STAT_TOP]:stats[c, cv2.CC_STAT_TOP] + stats[c, cv2.CC_STAT_HEIGHT],
                                 stats[c, cv2.CC_STAT_LEFT]:stats[c, cv2.CC_STAT_LEFT] + stats[c, cv2.CC_STAT_WIDTH]] == c)
         P = np.c_[xx + stats[c, cv2.CC_STAT_LEFT], yy + stats[c, cv2.CC_STAT_TOP]].astype(float)
@@ -98,6 +105,7 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
         if L < PET_MINLEN * size or L < 3 * wdt:
             continue
         segs.append((m + d * (t.max() + t.min()) / 2, d, L / 2, L))
+        used.append(c)
     if len(segs) < 2:
         return None
     X = meeting_point(segs, max(1.5, 0.04 * size), 0.35 * size)
@@ -106,10 +114,12 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     h, w_ = plant.shape
     if not (0 <= X[0] < w_ and 0 <= X[1] < h):
         return None
-    # inside the plant's convex hull and on or next to the plant (a clover's centre may be bare)
+    # inside the plant's convex hull and on or next to the plant or its stalks (a clover's
+    # centre may be bare; its petioles may be seen only as ridges)
     if not hull[int(X[1]), int(X[0])]:
         return None
-    dt = cv2.distanceTransform((1 - pm).astype(np.uint8), cv2.DIST_L2, 3)
+    near = (pm > 0) | np.isin(lab, used)
+    dt = cv2.distanceTransform((~near).astype(np.uint8), cv2.DIST_L2, 3)
     if dt[int(X[1]), int(X[0])] > 0.12 * size:
         return None
     return X

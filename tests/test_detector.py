@@ -769,6 +769,50 @@ def test_petiole_centre_ignores_a_blade_that_carries_no_leaf() -> None:
     assert X is not None and math.hypot(X[0] - 40, X[1] - 50) < 2.0, X
 
 
+def test_petiole_centre_meets_stalks_seen_only_as_ridges() -> None:
+    """Three trefoils (discs) on stalks that are faint index ridges only, not in the mask, meet at
+    C, 32 px from every leaf (> 0.12 × the plant size, where a meeting far from the plant used to
+    be refused): the meeting is near the stalks, so it is the centre (bench seed 6 case 67: a
+    clover 37.8 mm off → 0.5 mm)."""
+    from capm_field.plant_centre import petiole_centre
+
+    m = np.zeros((120, 120), np.uint8)
+    vi = np.zeros((120, 120), np.float32)
+    C = np.array([60.0, 62.0])
+    for a in (90, 210, 330):
+        d = np.array([math.cos(math.radians(a)), -math.sin(math.radians(a))])
+        cv2.circle(m, tuple(int(round(v)) for v in C + 44 * d), 10, 1, -1)
+        line = np.zeros_like(vi)
+        cv2.line(line, tuple(int(round(v)) for v in C + 3 * d), tuple(int(round(v)) for v in C + 36 * d), 1.0, 1)
+        vi = np.maximum(vi, 0.06 * line)  # above soil + 0.3 (thr − soil), below thr
+    plant = m > 0
+    ys, xs = np.nonzero(plant)
+    off = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3)[int(C[1]), int(C[0])]
+    assert off > 0.12 * math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
+    X = petiole_centre(plant, np.where(plant, 0.3, vi).astype(np.float32), 0.0, 0.1)
+    assert X is not None and math.hypot(*(X - C)) < 2.0, X
+
+
+def test_petiole_centre_ignores_a_ridge_along_a_leaf_rim(monkeypatch) -> None:
+    """A ridge 3 px outside a leaf's straight edge is no stalk: with the one real stalk it would
+    make a meeting at (72, 27), where nothing starts. With the rim rule there is one stalk, so no
+    answer (the tree median decides)."""
+    import capm_field.plant_centre as pc
+
+    m = np.zeros((100, 100), np.uint8)
+    cv2.rectangle(m, (20, 30), (60, 60), 1, -1)  # a broad leaf with a straight edge
+    cv2.line(m, (72, 35), (72, 62), 1, 1)  # a stalk ...
+    cv2.circle(m, (72, 70), 8, 1, -1)  # ... to its leaf
+    cv2.circle(m, (82, 14), 6, 1, -1)  # another leaf
+    plant = m > 0
+    vi = np.where(plant, 0.3, 0.0).astype(np.float32)
+    vi[27, 22:59] = 0.06  # the ridge along the edge
+    assert pc.petiole_centre(plant, vi, 0.0, 0.1) is None
+    monkeypatch.setattr(pc, "PET_RIM", -1.0)
+    X = pc.petiole_centre(plant, vi, 0.0, 0.1)
+    assert X is not None and math.hypot(X[0] - 72, X[1] - 27) < 2.0, X
+
+
 def test_compound_centre_declines_plants_without_three_lobed_hubs() -> None:
     """A single disc, a lone blade and a tiny mask are not compound-leaved plants: None."""
     from capm_field.compound_leaf import compound_centre
