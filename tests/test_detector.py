@@ -273,6 +273,40 @@ def test_uneven_trefoils_join_within_a_troi(seed, monkeypatch) -> None:
     assert np.hypot(*(np.array(det.pixel) - c)) > d_all + 10
 
 
+@pytest.mark.parametrize("seed", [0, 3])
+def test_trefoils_of_one_colour_join_across_long_petioles(seed, monkeypatch) -> None:
+    """Three trefoils of one colour 50 px from the centre, petioles unseen: farther apart than
+    MERGE_GAP (0.5) × a trefoil's diameter, so without MERGE_GAP_SAME the near-equal parts are
+    "ambiguous"; with it they are one plant, its centre within 2 px (bench seed 4 case 167: 38.5
+    → 0.6 mm). Two trefoils as far apart join if of one colour, not if one is yellower (a
+    neighbouring plant of another kind)."""
+    import capm_field.detector as det_mod
+
+    def clover(angles, sizes, cols) -> tuple[Detection, list[bool]]:
+        img = _soil(np.random.default_rng(seed))
+        c = np.array([320.0, 240.0])
+        mids = []
+        for a, s, col in zip(angles, sizes, cols):
+            u = np.array([math.cos(a), math.sin(a)])
+            _trefoil(img, c + 50 * u, a, s, col)
+            mids.append(c + (50 + 0.55 * s) * u)
+        dbg: dict = {}
+        det = detect_centre(img, Roi.from_ellipse((330, 235), (180, 180)), debug=dbg)
+        return det, [bool(dbg["mask_full"][int(m[1]), int(m[0])] == 2) for m in mids]
+
+    green, yellower = (50, 140, 60), (90, 150, 50)
+    three = ((0.3, 0.3 + 2 * np.pi / 3 + 0.25, 0.3 + 4 * np.pi / 3), (26, 22, 24), (green,) * 3)
+    det, joined = clover(*three)
+    assert det.reason is None and joined == [True] * 3 and math.hypot(det.pixel[0] - 320, det.pixel[1] - 240) < 2.0, det
+    det, joined = clover((0.3, 0.3 + np.pi + 0.25), (26, 24), (green, green))
+    assert det.reason is None and joined == [True, True], det
+    det, joined = clover((0.3, 0.3 + np.pi + 0.25), (26, 24), (green, yellower))
+    assert det.reason == "ambiguous", det
+    monkeypatch.setattr(det_mod, "MERGE_GAP_SAME", det_mod.MERGE_GAP)
+    det, joined = clover(*three)
+    assert det.reason == "ambiguous" and joined == [True, False, False], det
+
+
 def test_faint_first_choice_gets_the_second_look(monkeypatch) -> None:
     """A close-up (2 S square round the centre) of a blue-green lobed rosette on reddish soil
     (bench/other_renderer_plants.py, seed 7 case 39): after the soil white balance only one leaf
