@@ -523,10 +523,15 @@ FAN_GAP = 3.6  # rad: the far tips, seen from the apex, leave an empty sector at
 FAN_STRAIGHT = 1.15  # Σ geodesic / Σ straight-line distance from the apex to the far tips
 FAN_MIN_TIPS = 2
 FAN_MAX_PEAKS = 2  # more `vote_peaks`: leaves converge at several points (clover trefoil hubs) ...
-FAN_CLEAR_GAP = 4.4  # ... unless the plant, seen from the apex, spans ≤ 2π − this (≈ 108°)
+FAN_CLEAR_GAP = 3.6  # ... unless the plant, seen from the apex, spans ≤ 2π − this (≈ 154°; 4.4 until FAN_DENSE_GAP
+# kept clovers out: bench seeds 0–7, 3-peak grass 44.4 → 4.5, 21.2 → 2.7, 10.4 → 7.9 mm, a seedling 0.3 → 21.7 mm)
+FAN_DENSE_PEAKS = 4  # this many peaks or more: the plant must span ≤ 2π − FAN_DENSE_GAP (≈ 74°), as dense grass
+FAN_DENSE_GAP = 5.0  # fans do (drawn: 5.3); bench clovers of 4–6 peaks passed at 4.6–4.8 (42.5, 51.5 mm off → 13.0,
+# 0.7 mm), as did one bench grass of 5 peaks at 4.6 (4.5 → 19.3 mm)
 # measured (bench seeds 0 and 1): on clover the fan test passes at a peak on the rim of the
 # plant (≥ 4 peaks, plant spanning ≥ 125° from it); dense grass fans reach 3–5 peaks along
-# their blades but span ≤ 100°
+# their blades but span ≤ 100° (seeds 0–7, session 21: of the 231 fan answers, 200 on grass,
+# 9 had ≥ 3 peaks: 5 grass of 3, 1 of 5, 2 clovers and a rosette of 4–6)
 
 
 def _longest_empty_sector(angles: np.ndarray, bins: int = 72) -> float:
@@ -550,7 +555,8 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int) ->
     `axis_votes`. Accepted only when, seen from that peak, the far tips leave an empty sector
     ≥ FAN_GAP, the plant's paths to them are straight (a peak on the end of one long blade
     reaches the other tips round a bend), and the votes have ≤ FAN_MAX_PEAKS peaks
-    (`n_peaks`, from `vote_peaks`) or the whole plant lies in a narrow sector.
+    (`n_peaks`, from `vote_peaks`) or the whole plant lies in a sector the narrower the more
+    peaks there are (leaves converging at several points: trefoil hubs, rosette leaves).
     """
     near = cv2.dilate(plant.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     B = np.where(near, votes, 0)
@@ -569,7 +575,7 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int) ->
     if np.count_nonzero(sel) < 3:
         return None
     pix_gap = _longest_empty_sector(np.arctan2(dy[sel], dx[sel]))
-    if pix_gap < 0.8 * FAN_GAP or (n_peaks > FAN_MAX_PEAKS and pix_gap < FAN_CLEAR_GAP):
+    if pix_gap < 0.8 * FAN_GAP or (n_peaks > FAN_MAX_PEAKS and pix_gap < FAN_CLEAR_GAP) or (n_peaks >= FAN_DENSE_PEAKS and pix_gap < FAN_DENSE_GAP):
         return None
     band = cv2.dilate(plant.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)), iterations=max(1, int(BAND * size)))
     cost = np.where(plant, 1.0, np.where(band > 0, GAP_COST, np.inf))
