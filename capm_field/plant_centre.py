@@ -523,15 +523,16 @@ FAN_GAP = 3.6  # rad: the far tips, seen from the apex, leave an empty sector at
 FAN_STRAIGHT = 1.15  # Σ geodesic / Σ straight-line distance from the apex to the far tips
 FAN_MIN_TIPS = 2
 FAN_MAX_PEAKS = 2  # more `vote_peaks`: leaves converge at several points (clover trefoil hubs) ...
-FAN_CLEAR_GAP = 3.6  # ... unless the plant, seen from the apex, spans ≤ 2π − this (≈ 154°; 4.4 until FAN_DENSE_GAP
-# kept clovers out: bench seeds 0–7, 3-peak grass 44.4 → 4.5, 21.2 → 2.7, 10.4 → 7.9 mm, a seedling 0.3 → 21.7 mm)
-FAN_DENSE_PEAKS = 4  # this many peaks or more: the plant must span ≤ 2π − FAN_DENSE_GAP (≈ 74°), as dense grass
-FAN_DENSE_GAP = 5.0  # fans do (drawn: 5.3); bench clovers of 4–6 peaks passed at 4.6–4.8 (42.5, 51.5 mm off → 13.0,
-# 0.7 mm), as did one bench grass of 5 peaks at 4.6 (4.5 → 19.3 mm)
-# measured (bench seeds 0 and 1): on clover the fan test passes at a peak on the rim of the
-# plant (≥ 4 peaks, plant spanning ≥ 125° from it); dense grass fans reach 3–5 peaks along
-# their blades but span ≤ 100° (seeds 0–7, session 21: of the 231 fan answers, 200 on grass,
-# 9 had ≥ 3 peaks: 5 grass of 3, 1 of 5, 2 clovers and a rosette of 4–6)
+FAN_CLEAR_GAP = 3.6  # ... unless the plant, seen from the apex, spans ≤ 2π − this (≈ 154°) ...
+FAN_DENSE_PEAKS = 4  # ... and with this many peaks or more, ≤ 2π − FAN_DENSE_GAP (≈ 74°)
+FAN_DENSE_GAP = 5.0
+# measured: on clover the fan test passes at a peak on the rim of the plant (≥ 4 peaks); dense
+# grass fans reach 3–5 peaks along their blades. Until session 21 one gap (4.4, ≈ 108°) for > 2
+# peaks; bench seeds 0–7 then: 2 clovers of 4 and 6 peaks passed, spanning 85–95° (51.5, 42.5 mm off
+# → 0.7, 13.0 mm with FAN_DENSE_GAP), while 3-peak grass fans failed (44.4 → 4.5, 21.2 → 2.7,
+# 10.4 → 7.9 mm with 3.6; a 3-peak seedling 0.3 → 21.7 mm). Lost: a 5-peak bench grass spanning 95°
+# (4.5 → 19.3 mm); a drawn dense fan of 4 peaks spans 55° (tests). Of the 231 fan answers of seeds
+# 0–7 (200 on grass), 9 had ≥ 3 peaks.
 
 
 def _longest_empty_sector(angles: np.ndarray, bins: int = 72) -> float:
