@@ -647,6 +647,11 @@ def _locate(img: np.ndarray, win: _Window, choice: _Choice, debug: dict | None =
 
 
 # ---- pieces ------------------------------------------------------------------------------------
+ONE_PEAK_HUB = 0.145  # a plant of ≥ 2 separate parts but one vote peak (small trefoils on long petioles read as
+# thin) gets `compound_centre` if its strongest three-lobed hub reaches this (bench seeds 0–7, one-peak plants
+# that compound_centre would answer: rosettes and grass ≤ 0.138, clovers ≥ 0.146; answers: 4 clovers 38.0 → 1.9,
+# 25.5 → 1.6, 22.4 → 1.1, 18.8 → 13.9 mm, a rosette of 0.159 1.4 → 20.8 mm). Its compound flag is not used
+# (rosettes with such hubs went to the geometric median: ~30 answers worse)
 STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
 
 
@@ -880,6 +885,12 @@ def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[in
     return groups
 
 
+def _separate_parts(plant: np.ndarray) -> int:
+    """Number of the plant mask's connected parts of ≥ 2 % of its area."""
+    n, _, stats, _ = components(plant)
+    return int(np.count_nonzero(stats[1:, cv2.CC_STAT_AREA] >= 0.02 * stats[1:, cv2.CC_STAT_AREA].sum()))
+
+
 def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
                     lab_index: bool = False, stage1: tuple | None = None):
     """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
@@ -962,15 +973,18 @@ def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: R
         uv, lone = _stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
         if uv is not None:
             method = "stalk_centre"
-    if uv is None and n_peaks >= 2:
+    if uv is None and (n_peaks >= 2 or n_peaks == 1 and _separate_parts(plant) >= 2):
         # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
         # not show: the rays back from the hubs (after the stalk estimators, which are exact
         # when they answer: 0.3–2 mm cases became 5–12 mm when this came first)
         hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
-        uv = compound_leaf.compound_centre(plant, vi, soil, hubs)
-        if uv is not None:
-            method = "compound_centre"
-        compound = compound_leaf.has_compound_leaves(hubs)
+        if n_peaks < 2 and compound_leaf.strongest_hub(hubs) < ONE_PEAK_HUB:
+            hubs = None
+        else:
+            uv = compound_leaf.compound_centre(plant, vi, soil, hubs)
+            if uv is not None:
+                method = "compound_centre"
+            compound = n_peaks >= 2 and compound_leaf.has_compound_leaves(hubs)
     if uv is None and lone is not None:
         # one stalk carrying a leaf away from the rest of the plant: its end at the rest (after
         # compound_centre, exact when its rays agree; before the medians of the parts)

@@ -159,6 +159,30 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
     assert error(dbg) > 0.03 and dbg["method"] == "fan_apex"
 
 
+def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) -> None:
+    """Bench seed 7 case 23: five small trefoils on long tan petioles that neither look segments.
+    The plant reads as thin (r 0.021) and its leaf axes show one vote peak, so the hub estimators
+    used to be skipped and the tree median slid onto a trefoil (38.0 mm off). Its parts are
+    separate and its strongest three-lobed hub (0.20) reaches ONE_PEAK_HUB: 1.9 mm."""
+    import capm_field.detector as det_mod
+
+    case = make_case(7, 23, CAM, TaskConfig().delta, False)
+    assert case.kind == "clover"
+    img = case.scene.render(case.T, CAM)
+    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
+
+    def error(dbg: dict) -> float:
+        det = detect_centre(img, roi, debug=dbg)
+        assert det.reason is None, det
+        return float(np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre))
+
+    dbg: dict = {}
+    assert error(dbg) < 0.005 and dbg["method"] == "compound_centre", dbg["method"]
+    monkeypatch.setattr(det_mod, "ONE_PEAK_HUB", 9.0)
+    dbg = {}
+    assert error(dbg) > 0.03 and dbg["method"] == "tree_median"
+
+
 @pytest.mark.parametrize("seed, index", [(2, 214), (3, 210)])
 def test_olive_straw_on_bench_bare_soil_is_not_a_plant(seed: int, index: int) -> None:
     """Bench bare-soil scenes whose only candidates are long straws that the scene's light
