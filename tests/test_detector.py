@@ -160,7 +160,7 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
 
 
 def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) -> None:
-    """Bench seed 7 case 23: five small trefoils on long tan petioles that neither look segments.
+    """Bench seed 7 case 23: small trefoils on long tan petioles that neither look segments.
     The plant reads as thin (r 0.021) and its leaf axes show one vote peak, so the hub estimators
     used to be skipped and the tree median slid onto a trefoil (38.0 mm off). Its parts are
     separate and its strongest three-lobed hub (0.20) reaches ONE_PEAK_HUB: 1.9 mm."""
