@@ -134,6 +134,23 @@ def test_second_look_bench_weeds_are_found(seed: int, index: int, kind: str, tol
     assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < tol
 
 
+def _bench_clover(seed: int, index: int):
+    """A bench clover frame: a function that runs the detector on it (with its ROI) and returns
+    (ground error in m, stage-2 estimator)."""
+    case = make_case(seed, index, CAM, TaskConfig().delta, False)
+    assert case.kind == "clover"
+    img = case.scene.render(case.T, CAM)
+    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
+
+    def locate() -> tuple[float, str]:
+        dbg: dict = {}
+        det = detect_centre(img, roi, debug=dbg)
+        assert det.reason is None, det
+        return float(np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre)), dbg["method"]
+
+    return locate
+
+
 @pytest.mark.parametrize("seed, index", [(5, 147), (5, 27)])
 def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch) -> None:
     """Bench clovers (seed 5 cases 147 and 27) whose trefoils pass the fan test from a vote peak
@@ -142,21 +159,12 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
     rule they are located 0.7 and 13.0 mm off (51.5 and 42.5 mm as fans)."""
     import capm_field.plant_centre as pc
 
-    case = make_case(seed, index, CAM, TaskConfig().delta, False)
-    assert case.kind == "clover"
-    img = case.scene.render(case.T, CAM)
-    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
-
-    def error(dbg: dict) -> float:
-        det = detect_centre(img, roi, debug=dbg)
-        assert det.reason is None, det
-        return float(np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre))
-
-    dbg: dict = {}
-    assert error(dbg) < 0.015 and dbg["method"] != "fan_apex", dbg["method"]
+    locate = _bench_clover(seed, index)
+    err, method = locate()
+    assert err < 0.015 and method != "fan_apex", (err, method)
     monkeypatch.setattr(pc, "FAN_DENSE_GAP", 0.0)
-    dbg = {}
-    assert error(dbg) > 0.03 and dbg["method"] == "fan_apex"
+    err, method = locate()
+    assert err > 0.03 and method == "fan_apex", (err, method)
 
 
 def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) -> None:
@@ -166,21 +174,12 @@ def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) 
     separate and its strongest three-lobed hub (0.20) reaches ONE_PEAK_HUB: 1.9 mm."""
     import capm_field.detector as det_mod
 
-    case = make_case(7, 23, CAM, TaskConfig().delta, False)
-    assert case.kind == "clover"
-    img = case.scene.render(case.T, CAM)
-    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
-
-    def error(dbg: dict) -> float:
-        det = detect_centre(img, roi, debug=dbg)
-        assert det.reason is None, det
-        return float(np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre))
-
-    dbg: dict = {}
-    assert error(dbg) < 0.005 and dbg["method"] == "compound_centre", dbg["method"]
+    locate = _bench_clover(7, 23)
+    err, method = locate()
+    assert err < 0.005 and method == "compound_centre", (err, method)
     monkeypatch.setattr(det_mod, "ONE_PEAK_HUB", 9.0)
-    dbg = {}
-    assert error(dbg) > 0.03 and dbg["method"] == "tree_median"
+    err, method = locate()
+    assert err > 0.03 and method == "tree_median", (err, method)
 
 
 @pytest.mark.parametrize("seed, index", [(2, 214), (3, 210)])
