@@ -379,14 +379,14 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     prev: set = set()
     rows: dict[int, np.ndarray] = {}  # geodesic distances from each tip: the second pass finds mostly the same tips
     for _ in range(TM_ITER):
-        g0 = dijkstra(G, directed=False, indices=[centre_node])[0]
+        g0 = dijkstra(G, directed=True, indices=[centre_node])[0]
         tips = _tips(g0, node, plant, size)
         if len(tips) == 0 or set(tips.tolist()) == prev:
             break  # same tips from the new centre: F, and so the minimum, would not change
         prev = set(tips.tolist())
         new = [t for t in tips.tolist() if t not in rows]
         if new:  # each source's row is computed on its own: the same as in a call with all tips
-            rows.update(zip(new, dijkstra(G, directed=False, indices=new, limit=np.inf)))
+            rows.update(zip(new, dijkstra(G, directed=True, indices=new, limit=np.inf)))
         F = _tip_cost(np.array([rows[t] for t in tips.tolist()]))
         centre_node = int(np.argmin(F))
     if len(tips) == 0:
@@ -403,7 +403,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
         d0 = rows[t0][on_plant]
         far = int(on_plant[np.argmax(np.where(np.isfinite(d0), d0, -1.0))])
         if far not in rows:
-            rows[far] = dijkstra(G, directed=False, indices=[far], limit=np.inf)[0]
+            rows[far] = dijkstra(G, directed=True, indices=[far], limit=np.inf)[0]
         tips = np.array([t0, far])
         D0, D1 = rows[t0], rows[far]
         L = float(D0[far])
@@ -585,7 +585,7 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int) ->
     # and a start in the gap band would count its crossing cost on every path)
     k = int(np.argmin(dx * dx + dy * dy))
     src = np.array([px[k], py[k]], float)
-    g0 = dijkstra(G, directed=False, indices=[node[py[k], px[k]]])[0]
+    g0 = dijkstra(G, directed=True, indices=[node[py[k], px[k]]])[0]
     tips = _tips(g0, node, plant, size)
     if len(tips) == 0:
         return None
@@ -627,7 +627,8 @@ def _tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: float) -> n
 
 
 def _grid_graph(cost: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
-    """8-connected grid graph over finite-cost pixels; edge weight = length × mean cost."""
+    """8-connected grid graph over finite-cost pixels, both directions of every edge (for
+    `dijkstra(..., directed=True)`); edge weight = length × mean cost."""
     h, w = cost.shape
     ok = np.isfinite(cost)
     node = -np.ones((h, w), np.int64)
@@ -643,5 +644,8 @@ def _grid_graph(cost: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
         J.append(b[sel])
         Wt.append(wgt[sel])
     n = int(ok.sum())
-    G = sp.csr_matrix((np.concatenate(Wt), (np.concatenate(I), np.concatenate(J))), shape=(n, n))
+    # both directions stored: Dijkstra then runs as directed (the same distances; undirected,
+    # scipy builds the transpose on every call: ~0.1 ms a call, ~8 calls a tree median)
+    I, J, Wt = np.concatenate(I), np.concatenate(J), np.concatenate(Wt)
+    G = sp.csr_matrix((np.r_[Wt, Wt], (np.r_[I, J], np.r_[J, I])), shape=(n, n))
     return G, node
