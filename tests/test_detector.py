@@ -102,6 +102,39 @@ def test_grey_stones_on_purplish_soil_are_not_plants(stone) -> None:
     assert det.reason == "no_plant", det
 
 
+def _rosette_touching_a_stone(seed: int, plant: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+    """(image, true centre, plant size) of a green rosette on dark reddish soil, touched by a
+    larger pale stone that the soil white balance turns green (other renderer seed 0 case 43)."""
+    rng = np.random.default_rng(seed)
+    img = _soil(rng, (720, 1280), colour=(41, 44, 68))
+    c = np.array([640.0 + rng.uniform(-80, 80), 360.0 + rng.uniform(-60, 60)])
+    L = 45.0
+    a = rng.uniform(0, 2 * np.pi)
+    R = 1.3 * L
+    ang = rng.uniform(0, 2 * np.pi, 9)
+    pts = c + (0.8 * L + R) * np.array([math.cos(a), math.sin(a)]) + R * rng.uniform(0.8, 1.0, 9)[:, None] * np.c_[np.cos(ang), np.sin(ang)]
+    cv2.fillPoly(img, [cv2.convexHull(np.round(pts).astype(np.int32))], (150, 160, 170), cv2.LINE_AA)
+    if plant:
+        _lens_rosette(img, rng, c, L, (46, 143, 82))
+    return cv2.GaussianBlur(img, (0, 0), 1.0), c, 2 * L
+
+
+@pytest.mark.parametrize("seed", [1, 5, 6])
+def test_plant_touching_a_stone_the_white_balance_made_green_is_found(seed: int, monkeypatch) -> None:
+    """A plant and a larger neutral stone in one stage-1 component: the component's median colour
+    is the stone's (not greener than magenta in the camera's colours), so it was dropped whole
+    ("no_plant"). Its green part alone is judged instead (`detector._green_part`); the stone
+    alone stays no plant."""
+    import capm_field.detector as det_mod
+
+    img, c, S = _rosette_touching_a_stone(seed)
+    det = detect_centre(img)
+    assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 0.15 * S, (det, c)
+    assert detect_centre(_rosette_touching_a_stone(seed, plant=False)[0]).reason == "no_plant"
+    monkeypatch.setattr(det_mod, "SPLIT_GREEN", False)
+    assert detect_centre(img).reason == "no_plant"
+
+
 def test_straw_is_not_a_plant() -> None:
     """A straight olive-yellow straw piece (greenish after white balance) is not a weed."""
     rng = np.random.default_rng(7)
