@@ -17,11 +17,22 @@ What this is
     passed through a simple camera model (auto exposure with errors, white-balance errors,
     vignetting, defocus or motion blur, chromatic aberration, noise, sharpening, JPEG).
 
+    Kinds: dandelion (runcinate toothed rosette), plantain (ribbed ovate blades on petioles, some
+    flower spikes), grass (tuft of keeled blades, some bent or leaning one way), clover (trefoils on
+    thin pale/reddish petioles, stolons, chevrons), seedling (2 cotyledons + 0-2 true leaves, maybe
+    leaning on a visible hypocotyl), chickweed (branching stems with opposite leaf pairs, tiny white
+    flowers), thistle (lobed spiny rosette, white midribs), purslane (fleshy obovate leaves on red
+    radiating stems), fathen (upright spiral of rhombic mealy leaves seen from above), mallow
+    (round lobed palmate blades on long petioles). Images are 640x480 .. 2000x1500, 4:3 or 16:9
+    (some portrait); the plant spans 15-70 % of the short side, off-centre by up to 20 % of the
+    frame, never cut by the border; the main weed is always the largest and the nearest to the
+    image centre. Rendering takes ~0.25 s per image (median, one core).
+
 Run
-    cd /work/main
+    cd <repository root>
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 160 --seed 0
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 160 --seed 0 --roi
-    PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --kinds clover,grass --save-fails /tmp/f
+    PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --kinds clover,grass --save-fails fails/
 
     A single case can be re-rendered with ``render(np.random.default_rng([seed, index]), kind)``.
 
@@ -95,21 +106,22 @@ def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
 def noise(rng: np.random.Generator, h: int, w: int, cell: float) -> np.ndarray:
     """Smooth zero-mean noise of roughly unit std whose blobs are about `cell` px wide.
 
-    Large cells are made at low resolution and upsampled with a cubic filter so that big
-    images stay cheap; the crop offset is random so grids do not line up between layers."""
+    Large cells are made at low resolution and enlarged with repeated pyrUp (Gaussian
+    upsampling): a single big cubic resize leaves curvature seams along the grid that show
+    up as straight bands once the field is used as a height map and lit."""
     cell = float(cell)
     if cell <= 1.2:
         return rng.standard_normal((h, w), dtype=F32)
-    if cell > 6.0:
-        f = cell / 4.0
-        sh, sw = int(math.ceil(h / f)) + 3, int(math.ceil(w / f)) + 3
-        small = noise(rng, sh, sw, 4.0)
-        big = cv2.resize(small, (int(sw * f), int(sh * f)), interpolation=cv2.INTER_CUBIC)
+    if cell > 8.0:
+        n = int(math.floor(math.log2(cell / 4.0)))
+        k = 2 ** n
+        big = noise(rng, h // k + 3, w // k + 3, cell / k)
+        for _ in range(n):
+            big = cv2.pyrUp(big)
     else:
         gh, gw = int(h / cell) + 3, int(w / cell) + 3
         g = rng.standard_normal((gh, gw), dtype=F32)
         big = cv2.resize(g, (int(gw * cell), int(gh * cell)), interpolation=cv2.INTER_CUBIC)
-        big *= F32(1.0 / (0.55 + 0.0 * cell))
     oy = int(rng.integers(0, max(1, big.shape[0] - h + 1)))
     ox = int(rng.integers(0, max(1, big.shape[1] - w + 1)))
     out = big[oy:oy + h, ox:ox + w]
@@ -821,13 +833,13 @@ def thistle_margin(rng: np.random.Generator, n_lobes: int, depth: float, phase: 
 
 
 def build_thistle(rng: np.random.Generator) -> tuple[list[Organ], dict]:
-    st = make_style(rng, {"dark": 3, "blue": 3, "grey": 2, "mid": 2}, 0.08)
+    st = make_style(rng, {"dark": 3, "blue": 3, "grey": 1, "mid": 2}, 0.08)
     n = int(rng.integers(6, 13))
     ang = golden_angles(rng, n, 0.25)
-    spine_c = lin((222, 214, 160))
+    spine_c = lin((214, 208, 170))
     organs: list[Organ] = []
     spines: list[Organ] = []
-    hairy = rng.uniform(0.0, 0.5)
+    hairy = rng.uniform(0.0, 0.35)
     for i in range(n):
         age = 1 - i / n
         length = rng.uniform(0.6, 1.0) * (0.5 + 0.5 * age)
@@ -855,7 +867,7 @@ def build_thistle(rng: np.random.Generator) -> tuple[list[Organ], dict]:
                 d = side * N[0] * 0.6 + T[0] * 0.8 if ww > 0 else T[0]
                 d = d / np.linalg.norm(d)
                 hh = float(np.interp(tt, np.linspace(0, 1, len(hts)), hts)) + 0.005
-                spines.append(Stem(np.array([p0, p0 + d * sl]), 0.008, 0.002, spine_c, spine_c,
+                spines.append(Stem(np.array([p0, p0 + d * sl]), 0.005, 0.0015, spine_c, spine_c,
                                    np.array([hh, hh]), gloss=0.2))
     organs += spines
     organs += young_centre_leaves(rng, st, int(rng.integers(2, 5)), 0.1, 0.22, toothed=True,
@@ -905,7 +917,7 @@ def build_purslane(rng: np.random.Generator) -> tuple[list[Organ], dict]:
 
 
 def build_fathen(rng: np.random.Generator) -> tuple[list[Organ], dict]:
-    st = make_style(rng, {"grey": 3, "mid": 2, "blue": 1, "fresh": 1}, 0.04)
+    st = make_style(rng, {"grey": 2, "mid": 2, "blue": 1, "fresh": 1}, 0.04)
     n = int(rng.integers(8, 21))
     ang = golden_angles(rng, n, 0.15)
     lean = unit(rng.uniform(0, TAU)) * rng.uniform(0, 0.08)
@@ -1115,94 +1127,91 @@ def bbox(pts: np.ndarray, pad: float, W: int, H: int) -> tuple[int, int, int, in
     return x0, y0, x1, y1
 
 
-def draw_leaf(L: Layers, lf: Leaf, env: Env, main: bool) -> None:
-    H, W = L.top.shape
-    bb = bbox(np.vstack([lf.left, lf.right]), 3, W, H)
-    if bb is None:
-        return
-    x0, y0, x1, y1 = bb
-    h, w = y1 - y0, x1 - x0
-    off = np.array([x0, y0], float)
-    rng = env.rng
-    ml = fill_mask(lf.left - off, h, w)
-    mr = fill_mask(lf.right - off, h, w)
-    a = np.minimum(ml + mr, 1.0)
-    llen = max(arc_length(lf.mid), 1.0)
-    hole_ring = None
-    if lf.holes or lf.chew:
-        a, hole_ring = leaf_damage(rng, a, lf, off, llen)
-    ys, xs = np.nonzero(a > 0.01)
-    if ys.size == 0:
-        return
-    av = a[ys, xs]
-    X = (xs + x0).astype(F32)
-    Y = (ys + y0).astype(F32)
-    side = np.where(ml[ys, xs] >= mr[ys, xs], F32(1), F32(-1))
+@dataclass
+class LeafPixels:
+    """Per-pixel coordinates of a leaf's covered pixels in the leaf's own frame."""
+    X: np.ndarray             # image x, y of each pixel
+    Y: np.ndarray
+    side: np.ndarray          # +1 / -1: which half of the blade
+    t: np.ndarray             # 0 at the base .. 1 at the tip (radial distance for palmate blades)
+    s: np.ndarray             # signed distance from the midrib axis (px)
+    tx: np.ndarray            # unit tangent of the midrib
+    ty: np.ndarray
+    rx: np.ndarray | None = None   # palmate only: unit radial direction and angle from the axis
+    ry: np.ndarray | None = None
+    phi: np.ndarray | None = None
+
+
+def leaf_pixels(lf: Leaf, X: np.ndarray, Y: np.ndarray, side: np.ndarray) -> LeafPixels:
     b = lf.mid[0]
     ax = lf.mid[-1] - b
     alen = float(np.hypot(*ax)) + 1e-9
-    ux, uy = ax / alen
-    dx, dy = X - b[0], Y - b[1]
+    ux, uy = (float(v) for v in ax / alen)
+    dx, dy = X - F32(b[0]), Y - F32(b[1])
     if lf.radial:
         r = np.hypot(dx, dy)
-        t = np.clip(r / alen, 0, 1.2)
         phi = np.arctan2(ux * dy - uy * dx, ux * dx + uy * dy)
-        tx = np.full_like(X, ux)
-        ty = np.full_like(X, uy)
-        s = r * np.sin(phi)
-    elif lf.narrow:
+        return LeafPixels(X, Y, side, np.clip(r / alen, 0, 1.2), r * np.sin(phi), np.full_like(X, ux),
+                          np.full_like(X, uy), dx / (r + 1e-6), dy / (r + 1e-6), phi)
+    if lf.narrow:   # long curved blade: t from the nearest midrib vertex
         m = lf.mid
         d2 = (X[:, None] - m[None, :, 0]) ** 2 + (Y[:, None] - m[None, :, 1]) ** 2
         j = np.argmin(d2, axis=1)
-        t = (j / (len(m) - 1)).astype(F32)
         vt = np.gradient(m, axis=0)
         vt /= np.hypot(vt[:, 0], vt[:, 1])[:, None] + 1e-9
-        tx, ty = vt[j, 0].astype(F32), vt[j, 1].astype(F32)
-        s = np.zeros_like(X)
-    else:
-        t = np.clip((dx * ux + dy * uy) / alen, 0, 1)
-        s = dx * -uy + dy * ux
-        tx = np.full_like(X, ux)
-        ty = np.full_like(X, uy)
-    nx_, ny_ = -ty, tx  # left normal, matches polyline_frame's convention
+        return LeafPixels(X, Y, side, (j / (len(m) - 1)).astype(F32), np.zeros_like(X),
+                          vt[j, 0].astype(F32), vt[j, 1].astype(F32))
+    return LeafPixels(X, Y, side, np.clip((dx * ux + dy * uy) / alen, 0, 1), dx * -uy + dy * ux,
+                      np.full_like(X, ux), np.full_like(X, uy))
+
+
+def leaf_surface(lf: Leaf, px: LeafPixels, llen: float, env: Env,
+                 offs: tuple[tuple[int, int], tuple[int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Height, direct-sun factor and specular of the blade: pitch along the leaf, V-fold across
+    it, cupping and pleats (palmate), wavy margins (thistle) and gentle random bumps."""
     u_mid = np.linspace(0, 1, len(lf.hts))
-    hh = np.interp(t, u_mid, lf.hts).astype(F32)
-    slope = np.gradient(lf.hts, u_mid) / llen
-    pitch = np.interp(t, u_mid, slope).astype(F32)
-
-    # ---- surface normal: pitch along the leaf, V-fold across it, cupping, pleats, waves, bumps
+    hh = np.interp(px.t, u_mid, lf.hts).astype(F32)
+    pitch = np.interp(px.t, u_mid, np.gradient(lf.hts, u_mid) / llen).astype(F32)
+    nx_, ny_ = -px.ty, px.tx          # left normal, matches polyline_frame's convention
     tf = math.tan(lf.fold)
-    nhx = -pitch * tx - side * tf * nx_
-    nhy = -pitch * ty - side * tf * ny_
+    nhx = -pitch * px.tx - px.side * tf * nx_
+    nhy = -pitch * px.ty - px.side * tf * ny_
     if lf.radial:
-        rx, ry = dx / (np.hypot(dx, dy) + 1e-6), dy / (np.hypot(dx, dy) + 1e-6)
-        nhx -= 2 * lf.cup * t * rx
-        nhy -= 2 * lf.cup * t * ry
-        hh = hh + F32(lf.cup * alen * 0.3) * t * t
+        nhx -= 2 * lf.cup * px.t * px.rx
+        nhy -= 2 * lf.cup * px.t * px.ry
+        hh = hh + F32(lf.cup * lf.half_w * 0.3) * px.t * px.t
         if lf.n_pleats:
-            pl = lf.pleats * np.sin(lf.n_pleats * phi * 2.2) * np.minimum(t * 3, 1)
-            nhx += pl * -ry
-            nhy += pl * rx
+            pl = lf.pleats * np.sin(lf.n_pleats * px.phi * 2.2) * np.minimum(px.t * 3, 1)
+            nhx += pl * -px.ry
+            nhy += pl * px.rx
     if lf.wave:
-        wv = lf.wave * np.sin(TAU * lf.n_waves * t + side * 1.3)
-        nhx += wv * tx
-        nhy += wv * ty
-    o1 = tuple(int(v) for v in rng.integers(0, TILE, 2))
-    o2 = tuple(int(v) for v in rng.integers(0, TILE, 2))
+        wv = lf.wave * np.sin(TAU * lf.n_waves * px.t + px.side * 1.3)
+        nhx += wv * px.tx
+        nhy += wv * px.ty
     kb = float(np.clip(5.0 / (0.12 * llen + 1e-6), 0.02, 2.0))  # a few gentle bumps per leaf
-    nhx += lf.bump * tile_at(env.tiles["mid"], X, Y, kb, o1)
-    nhy += lf.bump * tile_at(env.tiles["mid"], X, Y, kb, o2)
+    nhx += lf.bump * tile_at(env.tiles["mid"], px.X, px.Y, kb, offs[0])
+    nhy += lf.bump * tile_at(env.tiles["mid"], px.X, px.Y, kb, offs[1])
     nd, spec = shade_normals(nhx, nhy, env.light, lf.gloss, lf.shine)
+    return hh, nd, spec
 
-    # ---- albedo
-    fine = tile_at(env.tiles["fine"], X, Y, 1.0, o1)
-    midn = tile_at(env.tiles["mid"], X, Y, 1.0, o2)
-    coarse = tile_at(env.tiles["coarse"], X, Y, float(np.clip(64.0 / llen, 0.05, 4.0)), o1)
+
+def leaf_albedo(lf: Leaf, px: LeafPixels, a: np.ndarray, ys: np.ndarray, xs: np.ndarray, off: np.ndarray,
+                llen: float, env: Env, offs: tuple[tuple[int, int], tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Leaf colour: texture, pale/purple base, lighter veins, translucent or red rim, chlorotic
+    spots, dry tips, clover chevron, mealy bloom, hairs. Also returns a dryness mask (dry
+    tissue is matte and curls, so it is shaded a little darker)."""
+    rng = env.rng
+    t = px.t
+    fine = tile_at(env.tiles["fine"], px.X, px.Y, 1.0, offs[0])
+    midn = tile_at(env.tiles["mid"], px.X, px.Y, 1.0, offs[1])
+    coarse = tile_at(env.tiles["coarse"], px.X, px.Y, float(np.clip(64.0 / llen, 0.05, 4.0)), offs[0])
     col = lf.colour[None, :] * (1 + lf.texture * (0.06 * midn + 0.035 * fine))[:, None]
+    dry_m = np.zeros_like(t)
     if lf.base_len > 0:
         gb = np.clip(1 - t / lf.base_len, 0, 1) ** 1.3
         col = mixc(col, lf.base_colour[None, :], gb[:, None])
     if lf.veins:
+        h, w = a.shape
         vm = vein_mask(lf.veins, off, h, w)[ys, xs]
         col = mixc(col, lf.vein_colour[None, :], vm[:, None])
     if lf.rim:
@@ -1217,12 +1226,11 @@ def draw_leaf(L: Layers, lf: Leaf, env: Env, main: bool) -> None:
         m = np.clip((coarse - 0.8) * 1.5, 0, 1) * lf.spots
         col = mixc(col, lin((160, 156, 64))[None, :], m[:, None])
     if lf.tip_dry:
-        m = smoothstep(lf.tip_dry, lf.tip_dry + 0.1, t + 0.05 * coarse)
+        dry_m = smoothstep(lf.tip_dry, lf.tip_dry + 0.1, t + 0.05 * coarse)
         dry = lin((150, 118, 66)) if rng.random() < 0.6 else lin((176, 160, 100))
-        col = mixc(col, dry[None, :], m[:, None])
-        nd = nd * (1 - 0.2 * m)
+        col = mixc(col, dry[None, :], dry_m[:, None])
     if lf.chevron:
-        sn = np.abs(s) / (lf.half_w + 1e-6)
+        sn = np.abs(px.s) / (lf.half_w + 1e-6)
         band = np.exp(-(((t - (0.3 + 0.3 * sn)) / 0.08) ** 2)) * (sn < 0.9) * lf.chevron
         col = mixc(col, lin((176, 196, 160))[None, :], band[:, None])
     if lf.mealy:
@@ -1230,15 +1238,43 @@ def draw_leaf(L: Layers, lf: Leaf, env: Env, main: bool) -> None:
         col = mixc(col, lin((196, 204, 194))[None, :], m[:, None] * 0.5)
     if lf.hairy:
         col = mixc(col, lin((200, 204, 196))[None, :], (lf.hairy * (0.12 + 0.2 * (fine > 1.2)))[:, None])
-    if lf.splash:
-        sp = splash_mask(rng, a, t.reshape(-1), ys, xs, lf, llen)
+    return col + F32(0.03 * lf.gloss), dry_m     # + sky sheen on waxy cuticles
+
+
+def draw_leaf(L: Layers, lf: Leaf, env: Env, main: bool) -> None:
+    H, W = L.top.shape
+    bb = bbox(np.vstack([lf.left, lf.right]), 3, W, H)
+    if bb is None:
+        return
+    x0, y0, x1, y1 = bb
+    h, w = y1 - y0, x1 - x0
+    off = np.array([x0, y0], float)
+    rng = env.rng
+    ml = fill_mask(lf.left - off, h, w)     # the two halves share the midrib edge, so their
+    mr = fill_mask(lf.right - off, h, w)    # anti-aliased coverages add up to 1 there
+    a = np.minimum(ml + mr, 1.0)
+    llen = max(arc_length(lf.mid), 1.0)
+    hole_ring = None
+    if lf.holes or lf.chew:
+        a, hole_ring = leaf_damage(rng, a, lf, off, llen)
+    ys, xs = np.nonzero(a > 0.01)
+    if ys.size == 0:
+        return
+    side = np.where(ml[ys, xs] >= mr[ys, xs], F32(1), F32(-1))
+    px = leaf_pixels(lf, (xs + x0).astype(F32), (ys + y0).astype(F32), side)
+    offs = (tuple(int(v) for v in rng.integers(0, TILE, 2)), tuple(int(v) for v in rng.integers(0, TILE, 2)))
+    hh, nd, spec = leaf_surface(lf, px, llen, env, offs)
+    col, dry_m = leaf_albedo(lf, px, a, ys, xs, off, llen, env, offs)
+    nd = nd * (1 - 0.2 * dry_m)
+    if lf.splash:   # soil specks: matte, lit like the ground
+        sp = splash_mask(rng, a, px.t, ys, xs, lf, llen)
         col = mixc(col, env.soil_colour[None, :] * F32(0.85), sp[:, None])
         spec = spec * (1 - sp)
         nd = mixc(nd, F32(env.light.l[2]), sp)
     if hole_ring is not None:
         col = mixc(col, lin((120, 90, 50))[None, :], hole_ring[ys, xs][:, None])
-    col = col + F32(0.03 * lf.gloss)  # sky sheen on waxy cuticles
-    composite(L, ys + y0, xs + x0, av, col.astype(F32), nd, spec.astype(F32), hh, lf.thick, main)
+    composite(L, ys + y0, xs + x0, a[ys, xs], col.astype(F32), nd.astype(F32), spec.astype(F32), hh,
+              lf.thick, main)
 
 
 def leaf_damage(rng: np.random.Generator, a: np.ndarray, lf: Leaf, off: np.ndarray,
@@ -1440,7 +1476,7 @@ def make_soil(rng: np.random.Generator, H: int, W: int, ppc: float, notes: dict,
     gcell = 0.06 * ppc                                        # sand grain / micro-aggregate size, full-res px
     alb *= (1 + tex)[..., None]
     if gcell >= 2.5:                                          # grains resolved (macro shots): discrete bumps
-        add_aggregates(rng, alb, top, pw, rng.uniform(0.05, 0.1), pal["grain"], 0.12)
+        add_aggregates(rng, alb, top, pw, rng.uniform(0.05, 0.1), 1.5 * pal["grain"], 0.25)
     if rng.random() < pal["p_crumbs"] and add_aggregates(rng, alb, top, pw, rng.uniform(0.25, 0.7), 0.12):
         extras.append("crumbs")
     if rng.random() < pal["p_clods"] and add_aggregates(rng, alb, top, pw, rng.uniform(1.2, 3.5), 0.1):
@@ -1448,13 +1484,18 @@ def make_soil(rng: np.random.Generator, H: int, W: int, ppc: float, notes: dict,
     if rng.random() < 0.1 and soil in ("loam", "clay", "crust", "mulch"):
         add_algae(rng, alb, pw)
         extras.append("algae")
+    band = None
     if g < 1.0:
         alb = cv2.resize(alb, (W, H), interpolation=cv2.INTER_LINEAR)
         top = cv2.resize(top, (W, H), interpolation=cv2.INTER_CUBIC) * F32(1 / g)
+        band = noise(rng, H, W, max(1.5, 0.6 / g))            # detail lost by the working resolution
+        top += F32(0.5) * band
     # per-pixel grain plus rare light (quartz) and dark (organic) specks
     u = rng.random((H, W), dtype=F32)
     amp = pal["grain"] if gcell < 2.5 else 0.3 * pal["grain"]
     mult = 1 + F32(amp * 3.46) * (u - 0.5) + 0.5 * (u > 0.993) - 0.35 * (u < 0.006)
+    if band is not None:
+        mult += F32(0.5 * pal["grain"]) * band
     alb *= merge3([mult, mult, mult])
     top += F32(0.3) * (u - 0.5)
     L = Layers(alb=alb.astype(F32, copy=False), top=top.astype(F32, copy=False),
@@ -1496,13 +1537,15 @@ def add_aggregates(rng: np.random.Generator, alb: np.ndarray, top: np.ndarray, p
     rad = (10 * 0.6 * np.exp(rng.normal(0, 0.35, nlab))).astype(F32)   # mixed sizes
     shade = rng.normal(0, shade_var, nlab).astype(F32)
     r = rad[lab] * (1 + 0.25 * noise(rng, h, w, 4))
-    dome = np.sqrt(np.clip(1 - (d / np.maximum(r, 1)) ** 2, 0, 1)).astype(F32)
-    sh = shade[lab]
+    dome = np.clip(1 - (d / np.maximum(r, 1)) ** 2, 0, 1).astype(F32)
+    dome = cv2.GaussianBlur(dome, (0, 0), 0.8)          # no kinks: upsampling must not ring
+    # each aggregate gets its own shade; the gaps between aggregates are a little darker
+    mult = 1 + shade[lab] * dome + 0.12 * (dome - 0.5)
     if f < 1.0:
         dome = cv2.resize(dome, (W, H), interpolation=cv2.INTER_CUBIC)
-        sh = cv2.resize(sh, (W, H), interpolation=cv2.INTER_LINEAR)
+        mult = cv2.resize(mult, (W, H), interpolation=cv2.INTER_LINEAR)
     top += dome * F32(rng.uniform(0.4, 1.0) * cell * height_k)
-    alb *= (1 + sh + 0.08 * dome)[..., None]
+    alb *= mult[..., None]
     return True
 
 
@@ -1522,7 +1565,7 @@ def add_cracks(rng: np.random.Generator, L: Layers, ppc: float) -> None:
         for p in pts:
             sub.insert((float(p[0]), float(p[1])))
         facets, _ = sub.getVoronoiFacetList([])
-        th = max(1, int(round(rng.uniform(0.08, 0.35) * ppc * wmul)))
+        th = max(1, int(round(rng.uniform(0.05, 0.2) * ppc * wmul)))
         polys = [np.round(np.clip(f, -1e5, 1e5) * 4).astype(np.int32) for f in facets]
         cv2.polylines(m, polys, True, 255, th, cv2.LINE_AA, 2)
     amp = cell * 0.035
@@ -1533,7 +1576,8 @@ def add_cracks(rng: np.random.Generator, L: Layers, ppc: float) -> None:
     mapx = np.arange(W, dtype=F32)[None, :] + F32(amp) * wx
     mapy = np.arange(H, dtype=F32)[:, None] + F32(amp) * wy
     mw = cv2.remap(m, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT).astype(F32) / 255
-    L.alb *= (1 - 0.6 * mw)[..., None]
+    mw *= np.clip(0.75 + 0.35 * cv2.resize(noise(rng, hs, ws, 3.0), (W, H)), 0.3, 1.0)   # uneven width/depth
+    L.alb *= (1 - 0.7 * mw)[..., None]
     L.top -= mw * F32(0.3 * ppc)
     edge = cv2.GaussianBlur(mw, (0, 0), max(1.0, 0.3 * ppc))
     L.top += edge * F32(0.15 * ppc)   # plate edges curl up a little
@@ -1609,7 +1653,7 @@ def add_litter(rng: np.random.Generator, L: Layers, ppc: float, tiles: dict[str,
             a = m.astype(F32) / 255
             hgt = th * 0.5
         else:
-            r = rng.uniform(0.1, 0.6) * ppc
+            r = min(rng.uniform(0.1, 0.6) * ppc, rng.uniform(0.005, 0.025) * min(H, W))
             if r < 1:
                 continue
             poly = blob_poly(rng, c, r, int(rng.integers(5, 10)), 0.3, elong=rng.uniform(1, 2.5))
@@ -1617,7 +1661,9 @@ def add_litter(rng: np.random.Generator, L: Layers, ppc: float, tiles: dict[str,
             if bb is None:
                 continue
             x0, y0, x1, y1 = bb
-            a = fill_mask(poly - np.array([x0, y0]), y1 - y0, x1 - x0) * F32(rng.uniform(0.5, 1.0))
+            a = fill_mask(poly - np.array([x0, y0]), y1 - y0, x1 - x0)
+            # partly buried / crumbled: patchy coverage
+            a *= np.clip(0.7 + 0.6 * tile_patch(tiles, "mid", rng, y1 - y0, x1 - x0), 0, 1) * F32(rng.uniform(0.5, 1.0))
             hgt = 0.05 * ppc
         h, w = a.shape
         sl = (slice(y0, y1), slice(x0, x1))
@@ -1898,7 +1944,8 @@ def develop(rad: np.ndarray, cam: Camera, rng: np.random.Generator, notes: dict)
     wgt = np.exp(-(((xx - Y.shape[1] / 2) / (0.44 * Y.shape[1])) ** 2 + ((yy - Y.shape[0] / 2) / (0.44 * Y.shape[0])) ** 2))
     meter = float((Y * wgt).sum() / wgt.sum())
     k = 0.16 / max(meter, 1e-6) * 2 ** cam.ev
-    img = cv2.GaussianBlur(rad, (0, 0), math.hypot(cam.base_sigma, cam.defocus))
+    sig = math.hypot(cam.base_sigma, cam.defocus)
+    img = cv2.GaussianBlur(rad, (3, 3) if sig < 0.9 else (0, 0), sig)
     if cam.motion:
         ln = cam.motion
         ker = np.zeros((ln, ln), F32)
