@@ -1818,7 +1818,8 @@ def person_shadow(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
     bulge = F32(rng.uniform(0.1, 0.3) * min(H, W)) * np.exp(-(along / F32(rng.uniform(0.15, 0.3) * min(H, W))) ** 2)
     wob = noise(rng, H, W, 0.2 * min(H, W)) * F32(0.04 * min(H, W)) + bulge
     soft = 0.015 * min(H, W)
-    return (1 / (1 + np.exp(-(d + wob - edge) / soft))).astype(F32)
+    # (logistic clipped: far from the edge exp() would overflow float32, with a warning, to 0 or 1 anyway)
+    return (1 / (1 + np.exp(np.clip(-(d + wob - edge) / soft, -60, 60)))).astype(F32)
 
 
 def merge3(planes: list[np.ndarray]) -> np.ndarray:
