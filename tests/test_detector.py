@@ -167,11 +167,11 @@ def test_second_look_bench_weeds_are_found(seed: int, index: int, kind: str, tol
     assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < tol
 
 
-def _bench_clover(seed: int, index: int):
-    """A bench clover frame: a function that runs the detector on it (with its ROI) and returns
+def _bench_weed(seed: int, index: int, kind: str = "clover"):
+    """A bench weed frame: a function that runs the detector on it (with its ROI) and returns
     (ground error in m, stage-2 estimator)."""
     case = make_case(seed, index, CAM, TaskConfig().delta, False)
-    assert case.kind == "clover"
+    assert case.kind == kind
     img = case.scene.render(case.T, CAM)
     roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
 
@@ -192,12 +192,28 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
     rule they are located 0.7 and 13.0 mm off (51.5 and 42.5 mm as fans)."""
     import capm_field.plant_centre as pc
 
-    locate = _bench_clover(seed, index)
+    locate = _bench_weed(seed, index)
     err, method = locate()
     assert err < 0.015 and method != "fan_apex", (err, method)
     monkeypatch.setattr(pc, "FAN_DENSE_GAP", 0.0)
     err, method = locate()
     assert err > 0.03 and method == "fan_apex", (err, method)
+
+
+@pytest.mark.parametrize("seed, index, kind", [(5, 178, "grass"), (6, 32, "rosette")])
+def test_line_hub_far_off_the_plants_middle_is_not_its_centre(seed: int, index: int, kind: str, monkeypatch) -> None:
+    """Bench seed 5 case 178 (a grass tuft of thick blades) and seed 6 case 32 (a rosette):
+    `line_hub`'s peak lay where thin parts near the plant's rim cross (a blade's tip, a leaf's
+    stalk), 0.24–0.25 of the plant's size from its mask centroid, 46.2 and 28.9 mm off. Hubs that
+    far off the middle (> LH_MAX_OFF) are refused, and the tree median answers: 4.9 and 0.9 mm."""
+    import capm_field.plant_centre as pc
+
+    locate = _bench_weed(seed, index, kind)
+    err, method = locate()
+    assert err < 0.01 and method != "line_hub", (err, method)
+    monkeypatch.setattr(pc, "LH_MAX_OFF", 9.0)
+    err, method = locate()
+    assert err > 0.025 and method == "line_hub", (err, method)
 
 
 def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) -> None:
@@ -207,7 +223,7 @@ def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) 
     separate and its strongest three-lobed hub (0.20) reaches ONE_PEAK_HUB: 1.9 mm."""
     import capm_field.detector as det_mod
 
-    locate = _bench_clover(7, 23)
+    locate = _bench_weed(7, 23)
     err, method = locate()
     assert err < 0.005 and method == "compound_centre", (err, method)
     monkeypatch.setattr(det_mod, "ONE_PEAK_HUB", 9.0)
