@@ -480,36 +480,35 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
     # components whose own colour is not a plant's (straw, stones) are not grouped with plants
     keep = []
     feats: dict[int, dict] = {}  # per component: also the features of a group of that one component
+
+    def measure(m: np.ndarray, l0: int, t0: int) -> dict:  # features of a mask cropped from grid (l0, t0)
+        h0, w0 = m.shape
+        f = candidate_features(m, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig,
+                               cen_s, rad_s, origin=(l0, t0))
+        f["area_frac"] = f["area"] / n_in
+        return f
+
     for k in comps:
         l0, t0, w0, h0 = (int(v) for v in stats[k, :4])
         sub = lab[t0:t0 + h0, l0:l0 + w0] == k
-        f = candidate_features(sub, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains, soil_level, sig,
-                               cen_s, rad_s, origin=(l0, t0))
-        f["area_frac"] = f["area"] / n_in
+        f = measure(sub, l0, t0)
         if vivid and contrast_band(f):
             f["lc"], f["core"] = _local_contrast(img, sub, (l0, t0), win, gains, thr, soil_level)
-        feats[k] = dict(f)
-        # a long straight piece whose raw colour is not green (straw that the soil white balance
-        # turned green) is not joined to a plant next to it: it would drag the plant's centre
-        ok = plant_like(f, vivid) and not (f["elong"] > STRAW_ELONG and f["g_raw"] < STRAW_RAW)
+        ok = _kept(f, vivid)
         if not ok and not vivid and SPLIT_GREEN and stats[k, cv2.CC_STAT_AREA] >= SPLIT_MIN * min_area:
             # a plant touching a larger stone (or straw) that the white balance made as green: one
             # component, of the stone's median colour. Its green part alone, if that is clearly a
             # plant, stays as this component (first look only: in −a* the part taken from soil
             # tints and straw made distractor seedlings outscore the weed)
             part = _green_part(sub, small[t0:t0 + h0, l0:l0 + w0], min_area)
-            if part is not None:
-                f2 = candidate_features(part, vi[t0:t0 + h0, l0:l0 + w0], small[t0:t0 + h0, l0:l0 + w0], gains,
-                                        soil_level, sig, cen_s, rad_s, origin=(l0, t0))
-                f2["area_frac"] = f2["area"] / n_in
-                if plant_like(f2) and f2["g_raw"] >= SPLIT_RAW and f2["gm_raw"] >= SPLIT_GM_MED \
-                        and f2["sat_raw"] >= SPLIT_SAT_RAW and not (f2["elong"] > STRAW_ELONG and f2["g_raw"] < STRAW_RAW):
-                    lab[t0:t0 + h0, l0:l0 + w0][sub & ~part] = 0
-                    py, px = np.nonzero(part)
-                    stats[k, cv2.CC_STAT_AREA] = len(px)  # (its box stays: a superset, for grouping)
-                    cents[k] = (l0 + px.mean(), t0 + py.mean())
-                    f, ok = f2, True
-                    feats[k] = dict(f)
+            f2 = measure(part, l0, t0) if part is not None else None
+            if f2 is not None and _kept(f2, False) and _clearly_green(f2):
+                lab[t0:t0 + h0, l0:l0 + w0][sub & ~part] = 0
+                py, px = np.nonzero(part)
+                stats[k, cv2.CC_STAT_AREA] = len(px)  # (its box stays: a superset, for grouping)
+                cents[k] = (l0 + px.mean(), t0 + py.mean())
+                f, ok = f2, True
+        feats[k] = dict(f)
         if ok:
             keep.append(k)
         if debug is not None:  # every component's colour features and full-image centroid
@@ -603,6 +602,18 @@ SPLIT_RAW, SPLIT_GM_MED, SPLIT_SAT_RAW = 0.01, 0.08, 0.23  # and beyond `plant_l
 # tints: the greenest pixels of any patch pass the colour rules), a grass blade with a seedling became a
 # plant (seed 3 case 37: 1.6 → 260 mm) and, in −a*, an ambiguous seedling a wrong one (seed 4 case 117).
 # Pale blue-green plants (gm_raw 0.05–0.06 when split) stay out: bare soil tints measured the same
+
+
+def _kept(f: dict, vivid: bool) -> bool:
+    """Whether a stage-1 component stays (may be grouped with others): plant-coloured, and not a
+    long straight piece whose raw colour is not green (straw that the soil white balance turned
+    green would drag a plant's centre it joined)."""
+    return plant_like(f, vivid) and not (f["elong"] > STRAW_ELONG and f["g_raw"] < STRAW_RAW)
+
+
+def _clearly_green(f: dict) -> bool:
+    """A split-off green part's colour in the camera's own colours (SPLIT_RAW, SPLIT_GM_MED, SPLIT_SAT_RAW)."""
+    return f["g_raw"] >= SPLIT_RAW and f["gm_raw"] >= SPLIT_GM_MED and f["sat_raw"] >= SPLIT_SAT_RAW
 
 
 def _green_part(sub: np.ndarray, bgr: np.ndarray, min_area: float) -> np.ndarray | None:
