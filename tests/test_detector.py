@@ -216,11 +216,29 @@ def test_line_hub_far_off_the_plants_middle_is_not_its_centre(seed: int, index: 
     assert err > 0.025 and method == "line_hub", (err, method)
 
 
+@pytest.mark.parametrize("seed, index, kind", [(1, 34, "grass"), (1, 195, "clover"), (3, 259, "clover")])
+def test_leaf_axis_votes_spread_over_the_plant_do_not_pull_the_tree_median(seed: int, index: int, kind: str, monkeypatch) -> None:
+    """Bench seed 1 cases 34 (grass) and 195 (clover), seed 3 case 259 (clover): their leaf-axis
+    votes pile up nowhere (7.2, 5.1 and 5.6 % of them within 0.08 × size of the peak; mostly
+    8–12 % on rosettes and grass fans whose axes meet), yet their maximum decided the tree
+    median: 31.0, 17.0 and 24.3 mm off. Weighted by how concentrated they are (VOTE_CONC): 4.3,
+    3.3 and 5.9 mm."""
+    import capm_field.plant_centre as pc
+
+    locate = _bench_weed(seed, index, kind)
+    err, method = locate()
+    assert err < 0.01 and method == "tree_median", (err, method)
+    monkeypatch.setattr(pc, "VOTE_CONC", None)
+    err, method = locate()
+    assert err > 0.015 and method == "tree_median", (err, method)
+
+
 def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) -> None:
     """Bench seed 7 case 23: small trefoils on long tan petioles that neither look segments.
     The plant reads as thin (r 0.021) and its leaf axes show one vote peak, so the hub estimators
-    used to be skipped and the tree median slid onto a trefoil (38.0 mm off). Its parts are
-    separate and its strongest three-lobed hub (0.20) reaches ONE_PEAK_HUB: 1.9 mm."""
+    used to be skipped and the tree median slid onto a trefoil (38.0 mm off; 29.7 mm since its
+    votes count by how much they pile up). Its parts are separate and its strongest three-lobed
+    hub (0.20) reaches ONE_PEAK_HUB: 1.9 mm."""
     import capm_field.detector as det_mod
 
     locate = _bench_weed(7, 23)
@@ -228,7 +246,7 @@ def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) 
     assert err < 0.005 and method == "compound_centre", (err, method)
     monkeypatch.setattr(det_mod, "ONE_PEAK_HUB", 9.0)
     err, method = locate()
-    assert err > 0.03 and method == "tree_median", (err, method)
+    assert err > 0.025 and method == "tree_median", (err, method)
 
 
 @pytest.mark.parametrize("seed, index", [(2, 214), (3, 210)])
