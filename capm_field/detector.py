@@ -11,45 +11,47 @@ Classical pipeline, no learned weights, sizes relative to the plant or the searc
      area and centrality; none → "no_plant", a close runner-up → "ambiguous". Either answer,
      or a small (seedling-sized) first choice, gets a second look on CIELAB −a* (yellow-green
      leaves) that accepts vivid plants only;
-  3. stage 2, find its centre: the chosen plant re-cut from the full-resolution frame at
-     ~PLANT_PX across, centre from `capm_field.plant_centre` (stalk crossings, the tree median
-     of geodesic distances to the leaf tips with leaf-axis votes, or the geometric median of
-     plants whose leaf axes converge at many points), `capm_field.compound_leaf` (clover
-     trefoils) or `capm_field.leaf_axes` (rosettes: where the leaves' axes meet);
+  3. stage 2, find its centre (`capm_field.centre_cascade`): the chosen plant re-cut from the
+     full-resolution frame at ~PLANT_PX across, centre from `capm_field.plant_centre` (stalk
+     crossings, the tree median of geodesic distances to the leaf tips with leaf-axis votes, or
+     the geometric median of plants whose leaf axes converge at many points),
+     `capm_field.compound_leaf` (clover trefoils) or `capm_field.leaf_axes` (rosettes: where the
+     leaves' axes meet);
   4. "cut_by_border" when the plant touches the frame edge near the centre; confidence.
 The pixel returned follows the camera module's convention (pixel centres at integer coordinates);
 `capm_field.camera.PinholeCamera.pixel_to_ground` maps it to the field (H⁻¹). Measured figures
 and the reasons behind each threshold: docs/perception.md. The index images are made in
-`capm_field.vegetation`, candidates are measured and judged in `capm_field.candidates`.
+`capm_field.vegetation`, thresholded and grouped in `capm_field.vegetation_mask`; candidates are
+measured and judged in `capm_field.candidates`; the ROI is `capm_field.roi`.
 """
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
-from dataclasses import dataclass, field
-from typing import Literal, Union
+from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
-from . import compound_leaf, leaf_axes, plant_centre, stalks
 from .camera import PinholeCamera
 from .candidates import (LC_RING, STRAW_ELONG, STRAW_ELONG_FULL, STRAW_RAW, candidate_features, contrast_band,
                          green_blade, plant_like)
+from .centre_cascade import centre_fullres
 from .components import components
 from .order_stats import elongation, median, percentile
+from .roi import ROI_MARGIN, Roi, RoiLike, as_roi, roi_from_troi, roi_mask
 from .vegetation import downscale, pooled_index, resize_down, soil_gains, vegetation_index
+from .vegetation_mask import group_components, hysteresis, threshold
+
+__all__ = ["Detection", "Roi", "RoiLike", "detect_centre", "ground_centre", "roi_from_troi"]
 
 log = logging.getLogger(__name__)
 
 Reason = Literal["no_plant", "ambiguous", "cut_by_border", "bad_image"]
 
 WORK_PX = 320  # stage 1 (find the plant): longest side of the search window after downscaling
-PLANT_PX = 80  # stage 2 (find its centre): plant bounding box resampled to about this size
-ROI_MARGIN = 1.15  # leaves may overhang the TROI; the centre must lie inside it
 
 
 @dataclass(frozen=True)
@@ -64,129 +66,6 @@ class Detection:
     pixel: tuple[float, float] | None
     confidence: float
     reason: Reason | None = None
-
-
-@dataclass(frozen=True)
-class Roi:
-    """Projected TROI R^TROI_I as an image conic: pixels p = (u, v, 1) with pᵀ·C·p ≤ 0 are inside.
-
-    `conic` is normalised so the ellipse centre gives a negative value. `ellipse()` returns the
-    same region as OpenCV's ((cu, cv), (full width, full height), angle in degrees).
-    `ground`, when the camera pose is known (`roi_from_troi`): the homography pixel → ground point
-    in TROI radii about the TROI centre (the TROI is the unit disc). With it the detector measures
-    a candidate's distance from X_w and its area on the ground, not in the image: under an oblique
-    view a plant's pixel area changes by up to ~1.7× across the ROI.
-    """
-
-    conic: np.ndarray
-    ground: np.ndarray | None = field(default=None, compare=False)
-
-    @classmethod
-    def from_conic(cls, C: np.ndarray, ground: np.ndarray | None = None) -> "Roi":
-        C = np.asarray(C, float).reshape(3, 3)
-        C = 0.5 * (C + C.T)
-        M = C[:2, :2]
-        if not np.all(np.isfinite(C)) or np.linalg.det(M) <= 0:
-            raise ValueError("conic is not a real ellipse")
-        c = -np.linalg.solve(M, C[:2, 2])
-        val = np.r_[c, 1.0] @ C @ np.r_[c, 1.0]
-        if val == 0:
-            raise ValueError("degenerate conic")
-        if val > 0:
-            C = -C
-        if (np.r_[c, 1.0] @ C @ np.r_[c, 1.0]) >= 0:
-            raise ValueError("conic has no interior")
-        if ground is not None:
-            ground = np.asarray(ground, float).reshape(3, 3)
-            if not np.all(np.isfinite(ground)) or abs(np.linalg.det(ground)) < 1e-300:
-                raise ValueError("ground homography is singular")
-        return cls(C, ground)
-
-    @classmethod
-    def from_ellipse(cls, centre: tuple[float, float], semi_axes: tuple[float, float], angle_deg: float = 0.0) -> "Roi":
-        """Ellipse with centre (u, v), semi-axes (a, b) in pixels, a along `angle_deg` from the u axis."""
-        a, b = float(semi_axes[0]), float(semi_axes[1])
-        if not (a > 0 and b > 0):
-            raise ValueError("semi-axes must be positive")
-        if not all(math.isfinite(v) for v in (a, b, float(angle_deg), *map(float, centre))):
-            raise ValueError("ellipse must be finite")
-        t = math.radians(angle_deg)
-        R = np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])
-        M = R @ np.diag([1 / a**2, 1 / b**2]) @ R.T
-        c = np.asarray(centre, float)
-        C = np.zeros((3, 3))
-        C[:2, :2] = M
-        C[:2, 2] = C[2, :2] = -M @ c
-        C[2, 2] = c @ M @ c - 1
-        return cls(C)
-
-    def params(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """(centre (2,), semi-axes (2,), angle of the first axis in degrees)."""
-        return self._params
-
-    @functools.cached_property
-    def _params(self) -> tuple[np.ndarray, np.ndarray, float]:
-        # computed once per Roi (the detector asks ~8 times a frame; the conic is not changed)
-        M = self.conic[:2, :2]
-        c = -np.linalg.solve(M, self.conic[:2, 2])
-        k = -(np.r_[c, 1.0] @ self.conic @ np.r_[c, 1.0])
-        if not k > 0:
-            raise ValueError("conic has no interior")
-        evals, evecs = np.linalg.eigh(M / k)
-        if not np.all(evals > 0):
-            raise ValueError("conic has no interior")
-        axes = 1 / np.sqrt(evals)
-        ang = math.degrees(math.atan2(evecs[1, 0], evecs[0, 0]))
-        return c, axes, ang
-
-    def ellipse(self) -> tuple[tuple[float, float], tuple[float, float], float]:
-        c, ax, ang = self.params()
-        return (float(c[0]), float(c[1])), (float(2 * ax[0]), float(2 * ax[1])), ang
-
-    def on_ground(self, uv) -> tuple[float, float] | None:
-        """For pixel uv: (distance from the TROI centre in TROI radii, ground area of a pixel there
-        ÷ that at the TROI centre's image), from `ground`; None without it or off the ground."""
-        if self.ground is None:
-            return None
-        q = self.ground @ np.array([float(uv[0]), float(uv[1]), 1.0])
-        w0 = self._ground_w0
-        if not (q[2] * w0 > 0):  # behind the camera or on the horizon
-            return None
-        # Jacobian of a homography: |det G| / w³, so the ratio to the centre's is (w0 / w)³
-        return math.hypot(q[0] / q[2], q[1] / q[2]), float((w0 / q[2]) ** 3)
-
-    @functools.cached_property
-    def _ground_w0(self) -> float:
-        p0 = np.linalg.solve(self.ground, np.array([0.0, 0.0, 1.0]))  # image of the TROI centre
-        p0 = p0 / p0[2]
-        return float(self.ground[2] @ p0)
-
-    def contains(self, uv: np.ndarray, scale: float = 1.0) -> np.ndarray:
-        """Whether pixels (N, 2) lie inside the ellipse grown about its centre by `scale`."""
-        c, _, _ = self.params()
-        uv = np.atleast_2d(np.asarray(uv, float))
-        q = c + (uv - c) / scale
-        C = self.conic
-        u, v = q[:, 0], q[:, 1]
-        return C[0, 0] * u * u + 2 * C[0, 1] * u * v + C[1, 1] * v * v + 2 * (C[0, 2] * u + C[1, 2] * v) + C[2, 2] <= 0
-
-
-RoiLike = Union[Roi, np.ndarray, tuple, None]
-
-
-def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, radius: float) -> Roi:
-    """R^TROI_I: the image of the TROI ground disc (centre X_w, radius r_w) seen from T_field_cam,
-    with the pixel → ground map in TROI radii (`Roi.ground`)."""
-    T = np.asarray(T_field_cam, float)
-    C = camera.disc_conic(T, np.asarray(centre_xy, float), np.asarray(radius, float))
-    x0, y0 = (float(v) for v in np.asarray(centre_xy, float).reshape(2))
-    r = float(radius)
-    N = np.array([[r, 0.0, x0], [0.0, r, y0], [0.0, 0.0, 1.0]])  # TROI radii → field
-    try:
-        ground = np.linalg.inv(camera.homography(T) @ N)
-    except np.linalg.LinAlgError:  # a camera in the ground plane: the detector keeps pixel measures
-        ground = None
-    return Roi.from_conic(C, ground)
 
 
 def ground_centre(camera: PinholeCamera, T_field_cam: np.ndarray, det: Detection) -> np.ndarray | None:
@@ -283,17 +162,6 @@ def _boxes_meet(a: list, b: list) -> bool:
                for ax0, ay0, ax1, ay1 in filter(None, a) for bx0, by0, bx1, by1 in filter(None, b))
 
 
-def _as_roi(roi: RoiLike) -> Roi | None:
-    if roi is None or isinstance(roi, Roi):
-        return roi
-    if isinstance(roi, np.ndarray) and roi.shape == (3, 3):
-        return Roi.from_conic(roi)
-    if isinstance(roi, (list, tuple)) and len(roi) == 3 and all(isinstance(r, (list, tuple, np.ndarray)) and len(r) == 3 for r in roi):
-        return Roi.from_conic(np.asarray(roi, float))  # a conic as nested lists
-    (cu, cv_), (w, h), ang = roi
-    return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
-
-
 @dataclass(frozen=True)
 class _Window:
     """The search window of one frame and what both looks compute from it alone (made once per
@@ -328,7 +196,7 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
     if H < 16 or W < 16:
         return bad
     try:
-        roi = _as_roi(roi_in)
+        roi = as_roi(roi_in)
         if roi is not None:
             c, ax, ang = roi.params()  # raises for a conic without interior
             # an ellipse holding all four corners holds the whole (convex) frame: no ROI then
@@ -378,7 +246,7 @@ def _window(img: np.ndarray, roi_in: RoiLike) -> _Window | Detection:
 
     inside = np.ones(gray.shape, bool)
     if roi is not None:
-        inside = _roi_mask(roi, gray.shape, x0, y0, sx, sy)
+        inside = roi_mask(roi, gray.shape, x0, y0, sx, sy)
     n_in = int(np.count_nonzero(inside))
     if roi is not None and n_in < 16:
         return bad
@@ -459,8 +327,8 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
     gains = win.gains ** VIVID_WB if vivid else win.gains
     vi = pooled_index(mid, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid)
     # soil statistics from every other row and column: the same percentiles in a quarter of the time
-    thr, soil_level, contrast = _threshold(vi[::2, ::2][inside[::2, ::2]] if n_in >= 4096 else vi[inside])
-    mask = _hysteresis(vi, thr, soil_level, inside)
+    thr, soil_level, contrast = threshold(vi[::2, ::2][inside[::2, ::2]] if n_in >= 4096 else vi[inside])
+    mask = hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = components(mask)
     min_area = max(6.0, 1.5e-4 * n_in)
     comps = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area]
@@ -519,7 +387,7 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
         return Detection(None, 0.0, "no_plant")
 
     # ---- plants: group components, score by size and centrality
-    groups = _group(lab, stats, comps)
+    groups = group_components(lab, stats, comps)
     rim = inside & ~cv2.erode(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) if roi is not None else np.zeros_like(inside)
     scored = []
     for g in groups:
@@ -687,7 +555,7 @@ def _locate(img: np.ndarray, win: _Window, choice: _Choice, debug: dict | None =
     # ---- stage 2: centre on a plant-normalised grid from the full-resolution crop
     ys, xs = np.nonzero(gmask)
     bx0, by0, bx1, by1 = _mask_box(xs, ys, to_full)
-    centre, tips, sharp = _centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
+    centre, tips, sharp = centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
                                           stage1=(gmask, x0, y0, sx, sy))
     if centre is None:
         return Detection(None, 0.0, "no_plant")
@@ -710,55 +578,6 @@ def _locate(img: np.ndarray, win: _Window, choice: _Choice, debug: dict | None =
 
 
 # ---- pieces ------------------------------------------------------------------------------------
-ONE_PEAK_HUB = 0.145  # a plant of ≥ 2 separate parts but one vote peak (small trefoils on long petioles read as
-# thin) gets `compound_centre` if its strongest three-lobed hub reaches this (bench seeds 0–7, one-peak plants
-# that compound_centre would answer: rosettes and grass ≤ 0.138, clovers ≥ 0.146; answers: 4 clovers 38.0 → 1.9,
-# 25.5 → 1.6, 22.4 → 1.1, 18.8 → 13.9 mm, a rosette of 0.159 1.4 → 20.8 mm). Its compound flag is not used
-# (rosettes with such hubs went to the geometric median: ~30 answers worse)
-STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
-
-
-def _stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
-                  lab_index: bool, thr: float, soil: float) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end) for a plant on the
-    stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
-    It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plants
-    over stalks.MAX_PX), on a window reaching stalks.MARGIN × the plant's size round it (a
-    clover's centre may lie outside the leaves that stage 1 grouped); answers in stage-2 grid
-    pixels."""
-    if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
-        return None, None
-    nh, nw = plant.shape
-    H, W = img.shape[:2]
-    span = max(nw * kx, nh * ky)  # the stage-2 window in image pixels
-    p = max(1.0, span / stalks.MAX_PX)  # pitch of the stalk grid, image pixels
-    m = stalks.MARGIN * span
-    xa, ya = max(int(math.floor(X0 - m)), 0), max(int(math.floor(Y0 - m)), 0)
-    xb, yb = min(int(math.ceil(X0 + nw * kx + m)), W), min(int(math.ceil(Y0 + nh * ky + m)), H)
-    if xb - xa < 16 or yb - ya < 16:
-        return None, None
-    NW, NH = max(int((xb - xa) / p), 8), max(int((yb - ya) / p), 8)
-    region = resize_down(img[ya:yb, xa:xb], (NW, NH)) if p > 1.0 else img[ya:yb, xa:xb]
-    p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
-    grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
-    vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
-    # the plant's mask onto this grid: stalk-grid pixel x ↔ image xa + (x + 0.5)·p_x − 0.5 ↔
-    # stage-2 grid (xa + (x + 0.5)·p_x − 0.5 − X0 + 0.5) / kx − 0.5 (and the same for y)
-    M = np.array([[p_x / kx, 0, (xa - X0 + 0.5 * p_x) / kx - 0.5], [0, p_y / ky, (ya - Y0 + 0.5 * p_y) / ky - 0.5]], np.float32)
-    NH, NW = region.shape[:2]
-    big = cv2.warpAffine(plant.astype(np.uint8), M, (NW, NH), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-                         borderMode=cv2.BORDER_CONSTANT) > 0
-    leaves = _hysteresis(vi, thr, soil, np.ones(vi.shape, bool)) | big
-    def to_stage2(X: np.ndarray | None) -> np.ndarray | None:
-        if X is None:
-            return None
-        x, y = xa + (X[0] + 0.5) * p_x - 0.5, ya + (X[1] + 0.5) * p_y - 0.5  # image pixels
-        return np.array([(x - X0 + 0.5) / kx - 0.5, (y - Y0 + 0.5) / ky - 0.5])
-
-    meet, lone = stalks.stalk_points(grey, vi, leaves, big)
-    return to_stage2(meet), to_stage2(lone)
-
-
 def _mask_box(xs: np.ndarray, ys: np.ndarray, to_full) -> tuple[float, float, float, float]:
     """Full-image box (x0, y0, x1, y1) of stage-1 grid pixels (xs, ys)."""
     fx0, fy0 = to_full(np.array([xs.min() - 0.5, ys.min() - 0.5]))
@@ -766,91 +585,7 @@ def _mask_box(xs: np.ndarray, ys: np.ndarray, to_full) -> tuple[float, float, fl
     return float(fx0), float(fy0), float(fx1), float(fy1)
 
 
-def _roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float, sy: float) -> np.ndarray:
-    """The ROI ellipse grown by ROI_MARGIN, rasterised on a grid whose pixel (i, j) is the full
-    image point (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
-    c, ax, ang = roi.params()
-    t = math.radians(ang)
-    # grid ← full: affine and axis-aligned scaling, so the ellipse maps to an ellipse exactly
-    # unless sx ≠ sy (then approximately; both are within a pixel of each other)
-    cg = ((c[0] - x0 + 0.5) / sx - 0.5, (c[1] - y0 + 0.5) / sy - 0.5)
-    s_ = math.sqrt(sx * sy)
-    S = 16
-    if max(abs(cg[0]), abs(cg[1]), ROI_MARGIN * ax[0] / s_, ROI_MARGIN * ax[1] / s_) * S > 2**28:
-        # beyond OpenCV's fixed-point drawing range (a far-off or huge ellipse): test each cell
-        jj, ii = np.meshgrid(np.arange(shape[1]), np.arange(shape[0]))
-        uv = np.c_[x0 + (jj.ravel() + 0.5) * sx - 0.5, y0 + (ii.ravel() + 0.5) * sy - 0.5]
-        return roi.contains(uv, ROI_MARGIN).reshape(shape)
-    m = np.zeros(shape, np.uint8)
-    cv2.ellipse(m, (int(round(cg[0] * S)), int(round(cg[1] * S))),
-                (max(1, int(round(ROI_MARGIN * ax[0] / s_ * S))), max(1, int(round(ROI_MARGIN * ax[1] / s_ * S)))),
-                math.degrees(t), 0, 360, 1, -1, cv2.LINE_8, 4)
-    return m.astype(bool)
-
-
 MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is computed on (stage 1)
-MID_PX_STAGE2 = 120_000  # same for the plant crop (stage 2)
-
-
-def _threshold(v: np.ndarray) -> tuple[float, float, float]:
-    """(threshold, soil level, contrast) of the index over the search window.
-
-    Soil is the bulk of the pixels; its spread σ is measured from the median to the 90th
-    percentile (plants rarely fill a tenth of a TROI view; the lower side, or the smaller of the
-    two, measured worse on bench seeds 0–3: more wrong centres). When a plant does fill ≥ a
-    tenth of the window (a close-up, a photo without a ROI: the 90th percentile lands on
-    leaves), the soil is the lower class of an Otsu split whose upper class is green and
-    ≥ BIG_SEP σ above it (dull rosettes covering 11–15 % of a frame: 13 of 30 "no_plant" → 4;
-    bench seeds 0–3: two frames of 1200 moved by ≤ 0.3 mm). Vegetation must stand
-    5 σ above the soil level, with the threshold kept within G* ∈ [0, 0.10] (the old floor 0.02
-    lost olive grass and yellow-green seedlings; the per-candidate colour rule `plant_like`
-    now keeps bare soil empty).
-    """
-    v = v.ravel()
-    lo, med, p90, hi = percentile(v, (0.5, 50, 90, 99.5))  # one partition
-    sig = max((p90 - med) / 1.28, 0.004)
-    if p90 > med:
-        # a plant filling ≥ a tenth of the window (a close-up, a photo without a ROI) puts the
-        # 90th percentile, or the median, on leaves: then the soil is the lower class of a
-        # two-class (Otsu) split of the index, when the upper one is green and far above it
-        if hi > lo:
-            q = np.clip((v - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
-            t, _ = cv2.threshold(q.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-            t = lo + t * (hi - lo) / 255.0
-            n_low = int(np.count_nonzero(v <= t))
-            frac = 1.0 - n_low / len(v)
-            up = v[v > t] if frac >= BIG_PLANT and n_low > 100 else v[:0]
-            # (the upper class's median is > 0 only if at least half of it is; on most frames
-            # Otsu splits a mottled soil and the upper class is soil, G* < 0: no percentiles then)
-            if len(up) and 2 * np.count_nonzero(up > 0) >= len(up):
-                m_l, p_l = percentile(v[v <= t], (50, 90))
-                s_l = max((p_l - m_l) / 1.28, 0.004)
-                m_u = median(up)
-                if m_u > 0 and m_u - m_l >= BIG_SEP * s_l:
-                    med, sig = m_l, s_l
-    thr = float(np.clip(med + THR_SIGMAS * sig, THR_FLOOR, 0.10))
-    above = v[v > thr]
-    contrast = float(np.float32(median(above)) - med) if len(above) else 0.0  # (float32, as np.median's was)
-    return thr, med, contrast
-
-
-BIG_PLANT, BIG_SEP = 0.1, 8.0  # upper Otsu class share, and its median over the lower's in the lower's σ
-THR_FLOOR = 0.0  # G* > 0: green above both red and blue; soil/stone/straw are rejected per candidate
-THR_SIGMAS = 5.0
-
-
-def _hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> np.ndarray:
-    """Pixels halfway from soil to thr connected to a pixel above thr (keeps stems, leaf margins)."""
-    strong = (vi > thr) & inside
-    strong = cv2.morphologyEx(strong.astype(np.uint8), cv2.MORPH_OPEN, np.ones((2, 2), np.uint8)).astype(bool)
-    weak = (vi > 0.5 * (thr + max(soil, 0.0))) & inside
-    n, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
-    keep = np.zeros(n, bool)
-    keep[lab[strong]] = True  # (repeated labels set the same flag: no need to sort them out)
-    keep[0] = False
-    return np.take(keep, lab)  # = keep[lab], ~2× faster than fancy indexing
-
-
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
 VIVID_WB = 0.5  # exponent on the soil white balance in the second look: half (a full pull towards a reddish
 # soil turns yellow-green leaves on grey-olive soil orange; none measured 0.4 % fewer detections)
@@ -889,7 +624,6 @@ def _local_contrast(img: np.ndarray, sub: np.ndarray, origin: tuple[int, int], w
     return (median(vf[m > 0]) - median(rv)) / max(float(rv.std()), 1e-4), core
 
 
-GROUP_GAP = 0.35  # × the group's diameter: largest gap a component may be joined across
 AMBIGUOUS = 0.8  # runner-up score / best score above which the choice is "ambiguous" ...
 MERGE_GAP = 0.5  # ... unless the contenders lie within this × the union's diameter: one plant
 # (seed 1 case 207: a clover in two halves 0.38 diameters apart; 0.7 joined a third plant)
@@ -902,204 +636,3 @@ SAME_GB, SAME_SAT = 0.02, 0.05  # SAME_SAT): trefoils on long petioles (bench se
 # (46.2 → 3.4 mm), but stones_on_soils.py answered 35 of 384 frames, not 31: three equal stones as one plant
 
 
-def _group(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
-    """Join components separated by a gap smaller than GROUP_GAP × the larger one's diameter.
-
-    Largest first: a group grows by every smaller component whose nearest pixel is within
-    GROUP_GAP × the group's diameter (distance transform of the group, minimum per label).
-    """
-    comps = sorted(comps, key=lambda k: -stats[k, cv2.CC_STAT_AREA])
-    if not comps:
-        return []
-    idx = np.asarray(comps)
-    groups: list[list[int]] = []
-    used: set[int] = set()
-    for k in comps:
-        if k in used:
-            continue
-        g = [k]
-        used.add(k)
-        while True:
-            # the group's pixel extent is the union of its components' boxes (no mask needed)
-            gx0 = int(stats[g, cv2.CC_STAT_LEFT].min())
-            gy0 = int(stats[g, cv2.CC_STAT_TOP].min())
-            gx1 = int((stats[g, cv2.CC_STAT_LEFT] + stats[g, cv2.CC_STAT_WIDTH]).max()) - 1
-            gy1 = int((stats[g, cv2.CC_STAT_TOP] + stats[g, cv2.CC_STAT_HEIGHT]).max()) - 1
-            diam = math.hypot(gx1 - gx0 + 1, gy1 - gy0 + 1)
-            # only components whose box comes within reach can join: crop to that window
-            r = int(math.ceil(GROUP_GAP * diam)) + 1
-            y0, y1 = max(gy0 - r, 0), min(gy1 + r + 1, lab.shape[0])
-            x0, x1 = max(gx0 - r, 0), min(gx1 + r + 1, lab.shape[1])
-            cand = [m for m in comps if m not in used and stats[m, cv2.CC_STAT_AREA] <= stats[k, cv2.CC_STAT_AREA]
-                    and stats[m, cv2.CC_STAT_LEFT] < x1 and stats[m, cv2.CC_STAT_LEFT] + stats[m, cv2.CC_STAT_WIDTH] > x0
-                    and stats[m, cv2.CC_STAT_TOP] < y1 and stats[m, cv2.CC_STAT_TOP] + stats[m, cv2.CC_STAT_HEIGHT] > y0]
-            if not cand:
-                break
-            sub = lab[y0:y1, x0:x1]
-            dist = cv2.distanceTransform((~np.isin(sub, g)).astype(np.uint8), cv2.DIST_L2, 3)
-            dmin = ndimage.minimum(dist, sub, cand)
-            new = [m for m, d in zip(cand, np.atleast_1d(dmin)) if np.isfinite(d) and d < GROUP_GAP * diam]
-            if not new:
-                break
-            g += new
-            used.update(new)
-        groups.append(g)
-    del idx
-    return groups
-
-
-def _separate_parts(plant: np.ndarray) -> int:
-    """Number of the plant mask's connected parts of ≥ 2 % of its area."""
-    n, _, stats, _ = components(plant)
-    return int(np.count_nonzero(stats[1:, cv2.CC_STAT_AREA] >= 0.02 * stats[1:, cv2.CC_STAT_AREA].sum()))
-
-
-def _centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
-                    lab_index: bool = False, stage1: tuple | None = None):
-    """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
-    gets the name of the estimator that gave it under "method"."""
-    H, W = img.shape[:2]
-    bx0, by0, bx1, by1 = box
-    m = 0.12 * max(bx1 - bx0, by1 - by0) + 2
-    X0, Y0 = max(int(math.floor(bx0 - m)), 0), max(int(math.floor(by0 - m)), 0)
-    X1, Y1 = min(int(math.ceil(bx1 + m)), W), min(int(math.ceil(by1 + m)), H)
-    crop = img[Y0:Y1, X0:X1]
-    k = PLANT_PX / max(bx1 - bx0, by1 - by0)
-    nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
-    kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
-    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab_index, exact=True)
-    inside = np.ones(vi.shape, bool)
-    if roi is not None:
-        inside = _roi_mask(roi, vi.shape, X0, Y0, kx, ky)
-    mask = _hysteresis(vi, thr, soil, inside)
-    n, lab, stats, _ = components(mask)
-    if n <= 1:
-        return None, 0, 0.0
-    g = None
-    if stage1 is not None:
-        # the plant is what stage 1 chose (colour-checked, grouped): the components that overlap
-        # its mask; straw or stones next to the plant must not become its stalks
-        gm1, x1_0, y1_0, s1x, s1y = stage1
-        gm1 = cv2.dilate(gm1.astype(np.uint8), np.ones((3, 3), np.uint8))
-        jj = ((X0 + (np.arange(nw) + 0.5) * kx - 0.5) - x1_0 + 0.5) / s1x - 0.5
-        ii = ((Y0 + (np.arange(nh) + 0.5) * ky - 0.5) - y1_0 + 0.5) / s1y - 0.5
-        jj = np.clip(np.rint(jj).astype(int), 0, gm1.shape[1] - 1)
-        ii = np.clip(np.rint(ii).astype(int), 0, gm1.shape[0] - 1)
-        keep = gm1[np.ix_(ii, jj)] > 0
-        g = [c for c in np.unique(lab[keep & (lab > 0)]) if stats[c, cv2.CC_STAT_AREA] >= 3] or None
-    if g is None:
-        # keep the components of this plant: the largest and those within reach of it
-        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-        groups = _group(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
-        g = next(gr for gr in groups if big in gr)
-    plant = np.isin(lab, g)
-    if int(plant.sum()) < 3:
-        return None, 0, 0.0
-    dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
-    ys_, xs_ = np.nonzero(plant)
-    size = math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
-    roundness = float(dtp[plant].mean()) / size  # mean half-width of the parts / plant size
-    uv, method = None, None
-    ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
-    # a fan (blades leaning one way from one base) first: its leaf axes converge at one end,
-    # where no middle-of-the-parts estimate lands (not for broad leaves, whose outlines vote
-    # across the plant: a half-disc of leaves had its "apex" on its rim, 0.43 L off)
-    votes, n_peaks = None, 0  # leaf-axis votes: made when first needed (~1–2 ms)
-    if roundness < plant_centre.THIN_ROUND:  # blades: their edges run along them, towards the base
-        votes = plant_centre.axis_votes(vi, plant, size)
-        n_peaks = plant_centre.vote_peaks(votes, size)
-        uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
-        if uv is not None:
-            method = "fan_apex"
-    # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin
-    # parts meet, then (below) where trefoils point away from, or the middle of the parts
-    # arranged round an empty centre; blades and narrow leaves (and round plants where none of
-    # these applies): the tree median, computed only then
-    parts = None  # (size, broad-parts mask): made when first needed, shared by the estimators below
-    if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
-        parts = plant_centre.broad_parts(plant)
-        for name, fn in (("petiole_centre", lambda: plant_centre.petiole_centre(plant, vi, soil, thr, parts)),
-                         ("line_hub", lambda: plant_centre.line_hub(plant, parts))):
-            uv = fn()
-            if uv is not None and not plant_centre.within_broad_hull(uv, parts):
-                uv = None  # stalk-like lines outside the leaves (straw next to the plant)
-            if uv is not None:
-                method = name
-                break
-    if uv is None and votes is None:
-        votes = plant_centre.axis_votes(vi, plant, size)
-        n_peaks = plant_centre.vote_peaks(votes, size)
-    compound = False
-    hubs = None
-    lone = None  # the centre end of a lone stalk between two leaf clusters (after compound_centre)
-    if uv is None and n_peaks >= STALK_PEAKS:
-        uv, lone = _stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
-        if uv is not None:
-            method = "stalk_centre"
-    if uv is None and (n_peaks >= 2 or n_peaks == 1 and _separate_parts(plant) >= 2):
-        # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
-        # not show: the rays back from the hubs (after the stalk estimators, which are exact
-        # when they answer: 0.3–2 mm cases became 5–12 mm when this came first)
-        hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
-        if n_peaks < 2 and compound_leaf.strongest_hub(hubs) < ONE_PEAK_HUB:
-            hubs = None
-        else:
-            uv = compound_leaf.compound_centre(plant, vi, soil, hubs)
-            if uv is not None:
-                method = "compound_centre"
-            compound = n_peaks >= 2 and compound_leaf.has_compound_leaves(hubs)
-    if uv is None and lone is not None:
-        # one stalk carrying a leaf away from the rest of the plant: its end at the rest (after
-        # compound_centre, exact when its rays agree; before the medians of the parts)
-        uv, method = lone, "lone_stalk"
-    if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
-        # separate parts round an empty centre (stalks too thin to see): the median of their
-        # centroids — after `compound_centre`, which answers exactly for trefoils whose
-        # middle leaflets point away from the centre (first, it took 13 of 24 stalkless
-        # other-renderer clovers at 0.2–0.4 R off; after: those went to `compound_centre`)
-        uv, method = plant_centre.component_median(plant), "component_median"
-        if uv is None:
-            # two parts (two leaves, stem unseen): where they are closest
-            uv, method = plant_centre.pair_gap(plant), "pair_gap"
-        if uv is not None:
-            parts = parts or plant_centre.broad_parts(plant)
-            uv = uv if plant_centre.within_broad_hull(uv, parts) else None
-        if uv is None:
-            method = None
-    scattered = bool(plant_centre.SCATTER_PEAKS) and n_peaks >= plant_centre.SCATTER_PEAKS
-    gmed = None  # the plant's geometric median: made when first needed
-    if uv is None and not compound and (scattered or n_peaks >= leaf_axes.MIN_PEAKS and roundness >= leaf_axes.MIN_ROUND) \
-            and compound_leaf.strongest_hub(hubs) < leaf_axes.HUB_GUARD:
-        # leaf axes votes with several peaks (a rosette's broad leaves: their edges vote
-        # everywhere, and the middle of the mask is pulled towards the biggest leaves): where the
-        # leaves' axes traced back from their tips meet. Not when three-lobed hubs show (leaflet
-        # axes meet at their trefoil's hub, not at the plant's centre), nor for 3 peaks of thin
-        # blades (grass: the tree median and its votes find their base)
-        gmed = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
-        met = leaf_axes.tip_axes_centre(plant, gmed)
-        if met is not None:
-            uv, method = met[0], "tip_axes"
-    if uv is None:
-        if compound or scattered:
-            # leaf axes converge at many separate points (the hubs of compound leaves, e.g.
-            # clover trefoils whose rays back did not meet, or the bases of scattered seedling
-            # leaves, or the broad leaves of a rosette whose edges vote everywhere, where the
-            # leaf axes did not meet either): no single apex in the votes (the tree median
-            # slides along a trefoil's stalk: 15–46 mm off); the middle the parts are arranged
-            # around
-            method = "geometric_median"
-            uv = gmed if gmed is not None else plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
-    if uv is None:
-        method = "tree_median"
-        # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
-        # window leaves the two edges of a broad leaf voting along two parallel lines that
-        # miss its axis (and the centre) by the half-width
-        scale = float(np.clip(plant_centre.AXIS_K * roundness, 0.015, plant_centre.AXIS_MAX))
-        fine = scale <= 0.015 or roundness >= plant_centre.THIN_ROUND  # votes unused for round parts (weight 0)
-        uv, ntips, sharp = plant_centre.tree_median(plant, vi, None, votes if fine else plant_centre.axis_votes(vi, plant, size, scale))
-        if uv is None:
-            return None, 0, 0.0
-    if debug is not None:
-        debug["method"] = method
-        debug["roundness"] = roundness
-    return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp

@@ -8,7 +8,7 @@ the leaf's end ("cap") is the axis. Where most of these lines meet is the centre
 the mask (geometric or geodesic median) is pulled towards the biggest leaves instead.
 
 The detector asks it where the leaf-axis votes show no single apex and no compound leaves
-(`detector._centre_fullres`). Measured on 100 uneven rosettes drawn as clean 80 px masks
+(`centre_cascade.centre_fullres`). Measured on 100 uneven rosettes drawn as clean 80 px masks
 (`bench/other_renderer_rosettes.py`: 3–8 lens, elliptic or obovate leaves, Dirichlet gaps):
 it answers 87 %, median error 0.050 L, 71 % within 0.1 L; the tree median 0.200 L (31 %),
 the geometric median 0.210 L (18 %). About 1.2 ms per call (the vote on every other pixel,
@@ -32,7 +32,7 @@ MIN_SUPPORT = 3
 MIN_SHARE = 0.55     # of the tips: a trefoil hub (3 of ≥ 6 leaflet tips) is not the centre
 MAX_TIPS = 16
 VOTE_STEP = 2  # px between the points of the vote grid
-# when the detector asks (`detector._centre_fullres`): the leaf-axis votes have ≥ SCATTER_PEAKS
+# when the detector asks (`centre_cascade.centre_fullres`): the leaf-axis votes have ≥ SCATTER_PEAKS
 # (4) peaks, or ≥ MIN_PEAKS with broad parts (mean half-width ≥ MIN_ROUND × size; 3 peaks of
 # grass blades measured worse: 3 grass tufts on bench seeds 0–3, 2 of them worse by 7–27 mm),
 # and no three-lobed hub reaches HUB_GUARD (`compound_hubs`: leaflet axes meet at the hub)

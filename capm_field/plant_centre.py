@@ -1,8 +1,8 @@
 """Stage 2 of the weed-centre detector: where a plant's leaves emerge, from its mask.
 
-Every estimator works on one plant's mask (bool, ~PLANT_PX across, see `capm_field.detector`)
+Every estimator works on one plant's mask (bool, ~PLANT_PX across, see `capm_field.centre_cascade`)
 and, where it needs colour, the vegetation index on the same grid; coordinates are (x, y) grid
-pixels. They assume nothing about the camera. `capm_field.detector._centre_fullres` chooses,
+pixels. They assume nothing about the camera. `capm_field.centre_cascade.centre_fullres` chooses,
 the first that answers:
   - thin blades leaning one way (a grass fan): `fan_apex`, where the blade axes converge;
   - plants with rounded parts (clover, seedlings, broad rosettes): `petiole_centre` (straight

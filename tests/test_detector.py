@@ -239,12 +239,12 @@ def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) 
     used to be skipped and the tree median slid onto a trefoil (38.0 mm off; 29.7 mm since its
     votes count by how much they pile up). Its parts are separate and its strongest three-lobed
     hub (0.20) reaches ONE_PEAK_HUB: 1.9 mm."""
-    import capm_field.detector as det_mod
+    import capm_field.centre_cascade as cascade
 
     locate = _bench_weed(7, 23)
     err, method = locate()
     assert err < 0.005 and method == "compound_centre", (err, method)
-    monkeypatch.setattr(det_mod, "ONE_PEAK_HUB", 9.0)
+    monkeypatch.setattr(cascade, "ONE_PEAK_HUB", 9.0)
     err, method = locate()
     assert err > 0.025 and method == "tree_median", (err, method)
 
@@ -1587,8 +1587,8 @@ def test_closed_form_elongation_matches_the_covariance_eigenvalues() -> None:
 
 
 def _threshold_reference(v: np.ndarray) -> tuple[float, float, float]:
-    """`detector._threshold` in plain numpy, without its shortcuts (the oracle of the test below)."""
-    from capm_field.detector import BIG_PLANT, BIG_SEP, THR_FLOOR, THR_SIGMAS
+    """`vegetation_mask.threshold` in plain numpy, without its shortcuts (the oracle of the test below)."""
+    from capm_field.vegetation_mask import BIG_PLANT, BIG_SEP, THR_FLOOR, THR_SIGMAS
 
     lo, med, p90, hi = (float(x) for x in np.percentile(v, [0.5, 50, 90, 99.5]))
     sig = max((p90 - med) / 1.28, 0.004)
@@ -1611,15 +1611,15 @@ def _threshold_reference(v: np.ndarray) -> tuple[float, float, float]:
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(150, 3000), share=st.floats(0.0, 0.6),
        soil=st.floats(-0.08, 0.02), green=st.floats(-0.05, 0.3))
 def test_threshold_equals_its_plain_numpy_definition(seed, n, share, soil, green) -> None:
-    """`_threshold` (one-partition percentiles; the Otsu classes' percentiles skipped when under
+    """`threshold` (one-partition percentiles; the Otsu classes' percentiles skipped when under
     half of the upper class is > 0) gives the plain numpy definition's values bit for bit, on soils
     with a green class of any share and level (also one below zero, where the skip applies)."""
-    from capm_field.detector import _threshold
+    from capm_field.vegetation_mask import threshold
 
     rng = np.random.default_rng(seed)
     k = int(share * n)
     v = np.r_[rng.normal(soil, 0.01, n - k), rng.normal(green, 0.02, k)].astype(np.float32)
-    assert _threshold(v) == _threshold_reference(v)
+    assert threshold(v) == _threshold_reference(v)
 
 
 @settings(max_examples=100, deadline=None)

@@ -1,0 +1,227 @@
+"""Stage 2 of the weed-centre detector: the centre of the chosen plant.
+
+The plant is re-cut from the full-resolution frame at ~PLANT_PX across and the stage-2 estimators
+are asked in a fixed order (`centre_fullres`): the first that answers wins. The estimators live in
+`capm_field.plant_centre`, `capm_field.stalks`, `capm_field.compound_leaf` and
+`capm_field.leaf_axes`; docs/perception.md §2 lists the order and why.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from . import compound_leaf, leaf_axes, plant_centre, stalks
+from .components import components
+from .roi import Roi, roi_mask
+from .vegetation import pooled_index, resize_down, vegetation_index
+from .vegetation_mask import group_components, hysteresis
+
+PLANT_PX = 80  # stage 2 (find its centre): plant bounding box resampled to about this size
+MID_PX_STAGE2 = 120_000  # pixels of the intermediate image the plant crop's index is computed on
+ONE_PEAK_HUB = 0.145  # a plant of ≥ 2 separate parts but one vote peak (small trefoils on long petioles read as
+# thin) gets `compound_centre` if its strongest three-lobed hub reaches this (bench seeds 0–7, one-peak plants
+# that compound_centre would answer: rosettes and grass ≤ 0.138, clovers ≥ 0.146; answers: 4 clovers 38.0 → 1.9,
+# 25.5 → 1.6, 22.4 → 1.1, 18.8 → 13.9 mm, a rosette of 0.159 1.4 → 20.8 mm). Its compound flag is not used
+# (rosettes with such hubs went to the geometric median: ~30 answers worse)
+STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
+
+
+def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
+                 lab_index: bool, thr: float, soil: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end) for a plant on the
+    stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
+    It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plants
+    over stalks.MAX_PX), on a window reaching stalks.MARGIN × the plant's size round it (a
+    clover's centre may lie outside the leaves that stage 1 grouped); answers in stage-2 grid
+    pixels."""
+    if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
+        return None, None
+    nh, nw = plant.shape
+    H, W = img.shape[:2]
+    span = max(nw * kx, nh * ky)  # the stage-2 window in image pixels
+    p = max(1.0, span / stalks.MAX_PX)  # pitch of the stalk grid, image pixels
+    m = stalks.MARGIN * span
+    xa, ya = max(int(math.floor(X0 - m)), 0), max(int(math.floor(Y0 - m)), 0)
+    xb, yb = min(int(math.ceil(X0 + nw * kx + m)), W), min(int(math.ceil(Y0 + nh * ky + m)), H)
+    if xb - xa < 16 or yb - ya < 16:
+        return None, None
+    NW, NH = max(int((xb - xa) / p), 8), max(int((yb - ya) / p), 8)
+    region = resize_down(img[ya:yb, xa:xb], (NW, NH)) if p > 1.0 else img[ya:yb, xa:xb]
+    p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
+    grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
+    vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
+    # the plant's mask onto this grid: stalk-grid pixel x ↔ image xa + (x + 0.5)·p_x − 0.5 ↔
+    # stage-2 grid (xa + (x + 0.5)·p_x − 0.5 − X0 + 0.5) / kx − 0.5 (and the same for y)
+    M = np.array([[p_x / kx, 0, (xa - X0 + 0.5 * p_x) / kx - 0.5], [0, p_y / ky, (ya - Y0 + 0.5 * p_y) / ky - 0.5]], np.float32)
+    NH, NW = region.shape[:2]
+    big = cv2.warpAffine(plant.astype(np.uint8), M, (NW, NH), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_CONSTANT) > 0
+    leaves = hysteresis(vi, thr, soil, np.ones(vi.shape, bool)) | big
+    def to_stage2(X: np.ndarray | None) -> np.ndarray | None:
+        if X is None:
+            return None
+        x, y = xa + (X[0] + 0.5) * p_x - 0.5, ya + (X[1] + 0.5) * p_y - 0.5  # image pixels
+        return np.array([(x - X0 + 0.5) / kx - 0.5, (y - Y0 + 0.5) / ky - 0.5])
+
+    meet, lone = stalks.stalk_points(grey, vi, leaves, big)
+    return to_stage2(meet), to_stage2(lone)
+
+
+def separate_parts(plant: np.ndarray) -> int:
+    """Number of the plant mask's connected parts of ≥ 2 % of its area."""
+    n, _, stats, _ = components(plant)
+    return int(np.count_nonzero(stats[1:, cv2.CC_STAT_AREA] >= 0.02 * stats[1:, cv2.CC_STAT_AREA].sum()))
+
+
+def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
+                   lab_index: bool = False, stage1: tuple | None = None):
+    """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
+    gets the name of the estimator that gave it under "method"."""
+    H, W = img.shape[:2]
+    bx0, by0, bx1, by1 = box
+    m = 0.12 * max(bx1 - bx0, by1 - by0) + 2
+    X0, Y0 = max(int(math.floor(bx0 - m)), 0), max(int(math.floor(by0 - m)), 0)
+    X1, Y1 = min(int(math.ceil(bx1 + m)), W), min(int(math.ceil(by1 + m)), H)
+    crop = img[Y0:Y1, X0:X1]
+    k = PLANT_PX / max(bx1 - bx0, by1 - by0)
+    nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
+    kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
+    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab_index, exact=True)
+    inside = np.ones(vi.shape, bool)
+    if roi is not None:
+        inside = roi_mask(roi, vi.shape, X0, Y0, kx, ky)
+    mask = hysteresis(vi, thr, soil, inside)
+    n, lab, stats, _ = components(mask)
+    if n <= 1:
+        return None, 0, 0.0
+    g = None
+    if stage1 is not None:
+        # the plant is what stage 1 chose (colour-checked, grouped): the components that overlap
+        # its mask; straw or stones next to the plant must not become its stalks
+        gm1, x1_0, y1_0, s1x, s1y = stage1
+        gm1 = cv2.dilate(gm1.astype(np.uint8), np.ones((3, 3), np.uint8))
+        jj = ((X0 + (np.arange(nw) + 0.5) * kx - 0.5) - x1_0 + 0.5) / s1x - 0.5
+        ii = ((Y0 + (np.arange(nh) + 0.5) * ky - 0.5) - y1_0 + 0.5) / s1y - 0.5
+        jj = np.clip(np.rint(jj).astype(int), 0, gm1.shape[1] - 1)
+        ii = np.clip(np.rint(ii).astype(int), 0, gm1.shape[0] - 1)
+        keep = gm1[np.ix_(ii, jj)] > 0
+        g = [c for c in np.unique(lab[keep & (lab > 0)]) if stats[c, cv2.CC_STAT_AREA] >= 3] or None
+    if g is None:
+        # keep the components of this plant: the largest and those within reach of it
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        groups = group_components(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
+        g = next(gr for gr in groups if big in gr)
+    plant = np.isin(lab, g)
+    if int(plant.sum()) < 3:
+        return None, 0, 0.0
+    dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
+    ys_, xs_ = np.nonzero(plant)
+    size = math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
+    roundness = float(dtp[plant].mean()) / size  # mean half-width of the parts / plant size
+    uv, method = None, None
+    ntips, sharp = 3, 1.0  # confidence inputs when a stalk/part arrangement gives the centre
+    # a fan (blades leaning one way from one base) first: its leaf axes converge at one end,
+    # where no middle-of-the-parts estimate lands (not for broad leaves, whose outlines vote
+    # across the plant: a half-disc of leaves had its "apex" on its rim, 0.43 L off)
+    votes, n_peaks = None, 0  # leaf-axis votes: made when first needed (~1–2 ms)
+    if roundness < plant_centre.THIN_ROUND:  # blades: their edges run along them, towards the base
+        votes = plant_centre.axis_votes(vi, plant, size)
+        n_peaks = plant_centre.vote_peaks(votes, size)
+        uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
+        if uv is not None:
+            method = "fan_apex"
+    # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin
+    # parts meet, then (below) where trefoils point away from, or the middle of the parts
+    # arranged round an empty centre; blades and narrow leaves (and round plants where none of
+    # these applies): the tree median, computed only then
+    parts = None  # (size, broad-parts mask): made when first needed, shared by the estimators below
+    if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
+        parts = plant_centre.broad_parts(plant)
+        for name, fn in (("petiole_centre", lambda: plant_centre.petiole_centre(plant, vi, soil, thr, parts)),
+                         ("line_hub", lambda: plant_centre.line_hub(plant, parts))):
+            uv = fn()
+            if uv is not None and not plant_centre.within_broad_hull(uv, parts):
+                uv = None  # stalk-like lines outside the leaves (straw next to the plant)
+            if uv is not None:
+                method = name
+                break
+    if uv is None and votes is None:
+        votes = plant_centre.axis_votes(vi, plant, size)
+        n_peaks = plant_centre.vote_peaks(votes, size)
+    compound = False
+    hubs = None
+    lone = None  # the centre end of a lone stalk between two leaf clusters (after compound_centre)
+    if uv is None and n_peaks >= STALK_PEAKS:
+        uv, lone = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
+        if uv is not None:
+            method = "stalk_centre"
+    if uv is None and (n_peaks >= 2 or n_peaks == 1 and separate_parts(plant) >= 2):
+        # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
+        # not show: the rays back from the hubs (after the stalk estimators, which are exact
+        # when they answer: 0.3–2 mm cases became 5–12 mm when this came first)
+        hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
+        if n_peaks < 2 and compound_leaf.strongest_hub(hubs) < ONE_PEAK_HUB:
+            hubs = None
+        else:
+            uv = compound_leaf.compound_centre(plant, vi, soil, hubs)
+            if uv is not None:
+                method = "compound_centre"
+            compound = n_peaks >= 2 and compound_leaf.has_compound_leaves(hubs)
+    if uv is None and lone is not None:
+        # one stalk carrying a leaf away from the rest of the plant: its end at the rest (after
+        # compound_centre, exact when its rays agree; before the medians of the parts)
+        uv, method = lone, "lone_stalk"
+    if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
+        # separate parts round an empty centre (stalks too thin to see): the median of their
+        # centroids — after `compound_centre`, which answers exactly for trefoils whose
+        # middle leaflets point away from the centre (first, it took 13 of 24 stalkless
+        # other-renderer clovers at 0.2–0.4 R off; after: those went to `compound_centre`)
+        uv, method = plant_centre.component_median(plant), "component_median"
+        if uv is None:
+            # two parts (two leaves, stem unseen): where they are closest
+            uv, method = plant_centre.pair_gap(plant), "pair_gap"
+        if uv is not None:
+            parts = parts or plant_centre.broad_parts(plant)
+            uv = uv if plant_centre.within_broad_hull(uv, parts) else None
+        if uv is None:
+            method = None
+    scattered = bool(plant_centre.SCATTER_PEAKS) and n_peaks >= plant_centre.SCATTER_PEAKS
+    gmed = None  # the plant's geometric median: made when first needed
+    if uv is None and not compound and (scattered or n_peaks >= leaf_axes.MIN_PEAKS and roundness >= leaf_axes.MIN_ROUND) \
+            and compound_leaf.strongest_hub(hubs) < leaf_axes.HUB_GUARD:
+        # leaf axes votes with several peaks (a rosette's broad leaves: their edges vote
+        # everywhere, and the middle of the mask is pulled towards the biggest leaves): where the
+        # leaves' axes traced back from their tips meet. Not when three-lobed hubs show (leaflet
+        # axes meet at their trefoil's hub, not at the plant's centre), nor for 3 peaks of thin
+        # blades (grass: the tree median and its votes find their base)
+        gmed = plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
+        met = leaf_axes.tip_axes_centre(plant, gmed)
+        if met is not None:
+            uv, method = met[0], "tip_axes"
+    if uv is None:
+        if compound or scattered:
+            # leaf axes converge at many separate points (the hubs of compound leaves, e.g.
+            # clover trefoils whose rays back did not meet, or the bases of scattered seedling
+            # leaves, or the broad leaves of a rosette whose edges vote everywhere, where the
+            # leaf axes did not meet either): no single apex in the votes (the tree median
+            # slides along a trefoil's stalk: 15–46 mm off); the middle the parts are arranged
+            # around
+            method = "geometric_median"
+            uv = gmed if gmed is not None else plant_centre.geometric_median(np.c_[xs_, ys_].astype(float))
+    if uv is None:
+        method = "tree_median"
+        # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
+        # window leaves the two edges of a broad leaf voting along two parallel lines that
+        # miss its axis (and the centre) by the half-width
+        scale = float(np.clip(plant_centre.AXIS_K * roundness, 0.015, plant_centre.AXIS_MAX))
+        fine = scale <= 0.015 or roundness >= plant_centre.THIN_ROUND  # votes unused for round parts (weight 0)
+        uv, ntips, sharp = plant_centre.tree_median(plant, vi, None, votes if fine else plant_centre.axis_votes(vi, plant, size, scale))
+        if uv is None:
+            return None, 0, 0.0
+    if debug is not None:
+        debug["method"] = method
+        debug["roundness"] = roundness
+    return np.array([X0 + (uv[0] + 0.5) * kx - 0.5, Y0 + (uv[1] + 0.5) * ky - 0.5]), ntips, sharp

@@ -1,0 +1,178 @@
+"""The search region of the weed-centre detector: the projected TROI R^TROI_I as an image conic.
+
+`Roi` (conic, optional pixel → ground homography in TROI radii), `roi_from_troi` (from the camera
+pose, X_w and r_w), `as_roi` (a Roi from what callers pass: a Roi, a 3×3 conic, an OpenCV ellipse)
+and `roi_mask` (the grown ellipse rasterised on a detector grid).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from typing import Union
+
+import cv2
+import numpy as np
+
+from .camera import PinholeCamera
+
+ROI_MARGIN = 1.15  # leaves may overhang the TROI; the centre must lie inside it
+
+
+@dataclass(frozen=True)
+class Roi:
+    """Projected TROI R^TROI_I as an image conic: pixels p = (u, v, 1) with pᵀ·C·p ≤ 0 are inside.
+
+    `conic` is normalised so the ellipse centre gives a negative value. `ellipse()` returns the
+    same region as OpenCV's ((cu, cv), (full width, full height), angle in degrees).
+    `ground`, when the camera pose is known (`roi_from_troi`): the homography pixel → ground point
+    in TROI radii about the TROI centre (the TROI is the unit disc). With it the detector measures
+    a candidate's distance from X_w and its area on the ground, not in the image: under an oblique
+    view a plant's pixel area changes by up to ~1.7× across the ROI.
+    """
+
+    conic: np.ndarray
+    ground: np.ndarray | None = field(default=None, compare=False)
+
+    @classmethod
+    def from_conic(cls, C: np.ndarray, ground: np.ndarray | None = None) -> "Roi":
+        C = np.asarray(C, float).reshape(3, 3)
+        C = 0.5 * (C + C.T)
+        M = C[:2, :2]
+        if not np.all(np.isfinite(C)) or np.linalg.det(M) <= 0:
+            raise ValueError("conic is not a real ellipse")
+        c = -np.linalg.solve(M, C[:2, 2])
+        val = np.r_[c, 1.0] @ C @ np.r_[c, 1.0]
+        if val == 0:
+            raise ValueError("degenerate conic")
+        if val > 0:
+            C = -C
+        if (np.r_[c, 1.0] @ C @ np.r_[c, 1.0]) >= 0:
+            raise ValueError("conic has no interior")
+        if ground is not None:
+            ground = np.asarray(ground, float).reshape(3, 3)
+            if not np.all(np.isfinite(ground)) or abs(np.linalg.det(ground)) < 1e-300:
+                raise ValueError("ground homography is singular")
+        return cls(C, ground)
+
+    @classmethod
+    def from_ellipse(cls, centre: tuple[float, float], semi_axes: tuple[float, float], angle_deg: float = 0.0) -> "Roi":
+        """Ellipse with centre (u, v), semi-axes (a, b) in pixels, a along `angle_deg` from the u axis."""
+        a, b = float(semi_axes[0]), float(semi_axes[1])
+        if not (a > 0 and b > 0):
+            raise ValueError("semi-axes must be positive")
+        if not all(math.isfinite(v) for v in (a, b, float(angle_deg), *map(float, centre))):
+            raise ValueError("ellipse must be finite")
+        t = math.radians(angle_deg)
+        R = np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])
+        M = R @ np.diag([1 / a**2, 1 / b**2]) @ R.T
+        c = np.asarray(centre, float)
+        C = np.zeros((3, 3))
+        C[:2, :2] = M
+        C[:2, 2] = C[2, :2] = -M @ c
+        C[2, 2] = c @ M @ c - 1
+        return cls(C)
+
+    def params(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """(centre (2,), semi-axes (2,), angle of the first axis in degrees)."""
+        return self._params
+
+    @functools.cached_property
+    def _params(self) -> tuple[np.ndarray, np.ndarray, float]:
+        # computed once per Roi (the detector asks ~8 times a frame; the conic is not changed)
+        M = self.conic[:2, :2]
+        c = -np.linalg.solve(M, self.conic[:2, 2])
+        k = -(np.r_[c, 1.0] @ self.conic @ np.r_[c, 1.0])
+        if not k > 0:
+            raise ValueError("conic has no interior")
+        evals, evecs = np.linalg.eigh(M / k)
+        if not np.all(evals > 0):
+            raise ValueError("conic has no interior")
+        axes = 1 / np.sqrt(evals)
+        ang = math.degrees(math.atan2(evecs[1, 0], evecs[0, 0]))
+        return c, axes, ang
+
+    def ellipse(self) -> tuple[tuple[float, float], tuple[float, float], float]:
+        c, ax, ang = self.params()
+        return (float(c[0]), float(c[1])), (float(2 * ax[0]), float(2 * ax[1])), ang
+
+    def on_ground(self, uv) -> tuple[float, float] | None:
+        """For pixel uv: (distance from the TROI centre in TROI radii, ground area of a pixel there
+        ÷ that at the TROI centre's image), from `ground`; None without it or off the ground."""
+        if self.ground is None:
+            return None
+        q = self.ground @ np.array([float(uv[0]), float(uv[1]), 1.0])
+        w0 = self._ground_w0
+        if not (q[2] * w0 > 0):  # behind the camera or on the horizon
+            return None
+        # Jacobian of a homography: |det G| / w³, so the ratio to the centre's is (w0 / w)³
+        return math.hypot(q[0] / q[2], q[1] / q[2]), float((w0 / q[2]) ** 3)
+
+    @functools.cached_property
+    def _ground_w0(self) -> float:
+        p0 = np.linalg.solve(self.ground, np.array([0.0, 0.0, 1.0]))  # image of the TROI centre
+        p0 = p0 / p0[2]
+        return float(self.ground[2] @ p0)
+
+    def contains(self, uv: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """Whether pixels (N, 2) lie inside the ellipse grown about its centre by `scale`."""
+        c, _, _ = self.params()
+        uv = np.atleast_2d(np.asarray(uv, float))
+        q = c + (uv - c) / scale
+        C = self.conic
+        u, v = q[:, 0], q[:, 1]
+        return C[0, 0] * u * u + 2 * C[0, 1] * u * v + C[1, 1] * v * v + 2 * (C[0, 2] * u + C[1, 2] * v) + C[2, 2] <= 0
+
+
+RoiLike = Union[Roi, np.ndarray, tuple, None]
+
+
+def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, radius: float) -> Roi:
+    """R^TROI_I: the image of the TROI ground disc (centre X_w, radius r_w) seen from T_field_cam,
+    with the pixel → ground map in TROI radii (`Roi.ground`)."""
+    T = np.asarray(T_field_cam, float)
+    C = camera.disc_conic(T, np.asarray(centre_xy, float), np.asarray(radius, float))
+    x0, y0 = (float(v) for v in np.asarray(centre_xy, float).reshape(2))
+    r = float(radius)
+    N = np.array([[r, 0.0, x0], [0.0, r, y0], [0.0, 0.0, 1.0]])  # TROI radii → field
+    try:
+        ground = np.linalg.inv(camera.homography(T) @ N)
+    except np.linalg.LinAlgError:  # a camera in the ground plane: the detector keeps pixel measures
+        ground = None
+    return Roi.from_conic(C, ground)
+
+
+def as_roi(roi: RoiLike) -> Roi | None:
+    """A `Roi` from a Roi, a 3×3 conic (array or nested lists) or an OpenCV ellipse ((cu, cv),
+    (width, height), angle in degrees); None stays None. Raises ValueError if it is not an ellipse."""
+    if roi is None or isinstance(roi, Roi):
+        return roi
+    if isinstance(roi, np.ndarray) and roi.shape == (3, 3):
+        return Roi.from_conic(roi)
+    if isinstance(roi, (list, tuple)) and len(roi) == 3 and all(isinstance(r, (list, tuple, np.ndarray)) and len(r) == 3 for r in roi):
+        return Roi.from_conic(np.asarray(roi, float))  # a conic as nested lists
+    (cu, cv_), (w, h), ang = roi
+    return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
+
+
+def roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float, sy: float) -> np.ndarray:
+    """The ROI ellipse grown by ROI_MARGIN, rasterised on a grid whose pixel (i, j) is the full
+    image point (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
+    c, ax, ang = roi.params()
+    t = math.radians(ang)
+    # grid ← full: affine and axis-aligned scaling, so the ellipse maps to an ellipse exactly
+    # unless sx ≠ sy (then approximately; both are within a pixel of each other)
+    cg = ((c[0] - x0 + 0.5) / sx - 0.5, (c[1] - y0 + 0.5) / sy - 0.5)
+    s_ = math.sqrt(sx * sy)
+    S = 16
+    if max(abs(cg[0]), abs(cg[1]), ROI_MARGIN * ax[0] / s_, ROI_MARGIN * ax[1] / s_) * S > 2**28:
+        # beyond OpenCV's fixed-point drawing range (a far-off or huge ellipse): test each cell
+        jj, ii = np.meshgrid(np.arange(shape[1]), np.arange(shape[0]))
+        uv = np.c_[x0 + (jj.ravel() + 0.5) * sx - 0.5, y0 + (ii.ravel() + 0.5) * sy - 0.5]
+        return roi.contains(uv, ROI_MARGIN).reshape(shape)
+    m = np.zeros(shape, np.uint8)
+    cv2.ellipse(m, (int(round(cg[0] * S)), int(round(cg[1] * S))),
+                (max(1, int(round(ROI_MARGIN * ax[0] / s_ * S))), max(1, int(round(ROI_MARGIN * ax[1] / s_ * S)))),
+                math.degrees(t), 0, 360, 1, -1, cv2.LINE_8, 4)
+    return m.astype(bool)
