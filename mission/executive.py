@@ -4,7 +4,8 @@ Per TROI (paper §III-B, Fig. 2c): plan → walk to x_b,k1 → arm to the NSV po
 detect the MPOI → branch (upper: flame from x_b,k1; lower: re-plan x_b,k3 ∈ R_m(X̄_w) and walk) →
 flame with the MTC hold ξ under the ignition interlock → stow → walk to x_kmax.
 
-Recovery: detection fails → one re-observation from an adjusted pose, then skip with a reason;
+Recovery: detection fails (no answer, or any reason: "ambiguous" included, whose best-guess
+pixel is logged but never flamed) → one re-observation from an adjusted pose, then skip with a reason;
 IK or motion failure → re-plan once, then skip; link loss or E-stop → igniter off, stow if
 possible, abort (MissionAborted → exit 1). The arm is stowed before every body move
 (assumption a.2: body and arm never move together), and the igniter is extinguished before
@@ -347,27 +348,33 @@ class Executive:
             miss = self._take("detector_miss")
             if miss and self.log:  # one /detection per attempt, also when a fault replaced the detector
                 self.log.detection(self.now_ns(), tid, None, 0.0, "fault_injected", None)
-            mpoi = None if miss else self._detect_in(frame.image, T_cam, troi, tid)
+            mpoi, why = (None, "fault_injected") if miss else self._detect_in(frame.image, T_cam, troi, tid)
             for other in also or []:
-                m = self._detect_in(frame.image, T_cam, other, other.id)
+                m, _ = self._detect_in(frame.image, T_cam, other, other.id)
                 if m is not None:
                     also_seen[other.id] = (float(m[0]), float(m[1]))
             if mpoi is not None:
                 return mpoi, also_seen
-            self._event("warning", f"{tid}: detection failed, attempt {attempt + 1}", target=tid)
+            self._event("warning", f"{tid}: detection failed ({why}), attempt {attempt + 1}", target=tid, reason=why)
         return None, also_seen
 
-    def _detect_in(self, image: np.ndarray, T_cam: np.ndarray, troi: TROI, tid: str) -> np.ndarray | None:
-        """Detect the MPOI of one TROI in an image; the field point via H⁻¹, or None."""
+    def _detect_in(self, image: np.ndarray, T_cam: np.ndarray, troi: TROI, tid: str) -> tuple[np.ndarray | None, str | None]:
+        """Detect the MPOI of one TROI in an image: (field point via H⁻¹, None), or (None, why).
+
+        Only an answer without a reason is acted on: an "ambiguous" detection carries the best
+        guess's pixel (logged), but two near-equal plants in the TROI may as well be the other
+        one; the next attempt looks again from another pose instead of flaming a guess."""
         det = self.detect(image, roi=self._roi(T_cam, troi))
-        mpoi = None
-        if det.pixel is not None:
+        mpoi, why = None, det.reason
+        if det.pixel is not None and det.reason is None:
             g = self.camera.pixel_to_ground(T_cam, np.array([det.pixel]))[0]
             if np.all(np.isfinite(g)):
                 mpoi = g
+            else:
+                why = "off_ground"
         if self.log:
             self.log.detection(self.now_ns(), tid, det.pixel, det.confidence, det.reason, tuple(mpoi) if mpoi is not None else None)
-        return mpoi
+        return mpoi, why
 
     def _roi(self, T_cam: np.ndarray, troi: TROI):
         # The MPOI lies in the TROI by design; a 1.5× margin keeps plants whose centre sits on the rim.

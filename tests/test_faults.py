@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from capm_field.camera import PinholeCamera
+from capm_field.detector import Detection, detect_centre
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
 from capm_field.planners import make_planner
@@ -27,7 +28,7 @@ START = SE2(0.0, 0.0, 0.0)
 END = SE2(2.0, 0.0, 0.0)
 
 
-def run_mission(core, tmp_path, faults, trois=TROIS, seed=2):
+def run_mission(core, tmp_path, faults, trois=TROIS, seed=2, detector=None):
     robot = core.robot
     d = open_bench_drivers(robot, core.task, trois, START, seed)
     world = d.extras["world"]
@@ -38,7 +39,8 @@ def run_mission(core, tmp_path, faults, trois=TROIS, seed=2):
 
     log = RunLog(tmp_path / "run.mcap", robot, PinholeCamera.from_config(robot.cfg.camera), bench=True)
     inj = FaultInjector(faults, d, log_event=lambda lvl, msg: log.event(now(), lvl, msg))
-    ex = Executive(trois, START, END, d, core, make_planner("c", core), log=log, truth=world.truth, now_ns=now, hook=inj.on)
+    ex = Executive(trois, START, END, d, core, make_planner("c", core), log=log, truth=world.truth, now_ns=now, hook=inj.on,
+                   detector=detector)
     try:
         result = ex.run()
         final = {
@@ -204,6 +206,35 @@ def test_log_accounts_for_retries_corrections_and_injected_misses(core, tmp_path
     assert any(m.topic == "/detection" and m.data.reason == "fault_injected" for m in msgs)
     ign = [(m.log_time, m.data.SerializeToString()) for m in msgs if m.topic == "/igniter/state"]
     assert len(ign) == len(set(ign)) > 0
+
+
+@pytest.mark.parametrize("ambiguous_calls", [1, 2])
+def test_an_ambiguous_detection_is_looked_at_again_not_flamed(core, tmp_path, ambiguous_calls):
+    """The detector's "ambiguous" carries its best guess's pixel, but two near-equal plants in the
+    TROI may as well be the other one: the executive must not flame it. Once ambiguous: the
+    second look (another NSV pose) gives the MPOI and the target is flamed from it; ambiguous
+    both times: skipped as detection_failed, the igniter never lit, both answers in /detection."""
+    calls: list = []
+
+    def detector(image, roi=None, debug=None):
+        det = detect_centre(image, roi, debug)
+        calls.append(det)
+        if len(calls) <= ambiguous_calls and det.pixel is not None:
+            return Detection(det.pixel, 0.3, "ambiguous")  # the same pixel: only the reason differs
+        return det
+
+    result, final, _, log = run_mission(core, tmp_path, [], detector=detector)
+    t = result.targets[0]
+    msgs = list(iter_run(log, topics={"/detection", "/igniter/state"}))
+    dets = [m.data for m in msgs if m.topic == "/detection"]
+    assert len(calls) == len(dets) == 2 and dets[0].reason == "ambiguous"
+    lit = [m.log_time for m in msgs if m.topic == "/igniter/state" and m.data.flame_on]
+    if ambiguous_calls == 1:
+        assert t.flamed and t.mpoi_detected is not None and lit
+        assert min(lit) > max(m.log_time for m in msgs if m.topic == "/detection")
+    else:
+        assert not t.flamed and t.reason == "detection_failed" and not lit, (t.flamed, t.reason)
+    assert not final["flame_on"] and not final["armed"]
 
 
 def test_ik_failure_at_the_flame_pose_skips_the_target(core, tmp_path):
