@@ -184,6 +184,23 @@ def _bench_weed(seed: int, index: int, kind: str = "clover"):
     return locate
 
 
+def test_two_leaf_rosette_in_a_line_is_no_straw(monkeypatch) -> None:
+    """Bench seed 4 case 40: a dark-green rosette of two leaves in a line (elongation 5.9 at full
+    resolution, past the straw rule's 5.0) with min(g_raw, gr) 0.05: above bench straw (≤ 0.044),
+    so `green_blade` spares it. Found within 10 mm; at the old BLADE_GREEN 0.06, "no plant"."""
+    import capm_field.candidates as cand
+
+    case = make_case(4, 40, CAM, TaskConfig().delta, False)
+    assert case.kind == "rosette"
+    img = case.scene.render(case.T, CAM)
+    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
+    det = detect_centre(img, roi)
+    assert det.reason is None, det
+    assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.010
+    monkeypatch.setattr(cand, "BLADE_GREEN", 0.06)
+    assert detect_centre(img, roi).reason == "no_plant"
+
+
 @pytest.mark.parametrize("seed, index", [(5, 147), (5, 27)])
 def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch) -> None:
     """Bench clovers (seed 5 cases 147 and 27) whose trefoils pass the fan test from a vote peak
