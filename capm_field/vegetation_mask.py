@@ -83,7 +83,6 @@ def group_components(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> li
     comps = sorted(comps, key=lambda k: -stats[k, cv2.CC_STAT_AREA])
     if not comps:
         return []
-    idx = np.asarray(comps)
     groups: list[list[int]] = []
     used: set[int] = set()
     for k in comps:
@@ -116,5 +115,4 @@ def group_components(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> li
             g += new
             used.update(new)
         groups.append(g)
-    del idx
     return groups

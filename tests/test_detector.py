@@ -159,21 +159,23 @@ def test_second_look_bench_weeds_are_found(seed: int, index: int, kind: str, tol
     (a pale rosette, 36 mm off) and seed 3 case 13 (a seedling, 18 mm off): G* segments a part of
     the plant, −a* the same plant whole at 2.0× and 2.3× its area but < 1.5× its score, which
     WHOLE_GAIN takes."""
-    case = make_case(seed, index, CAM, TaskConfig().delta, False)
-    assert case.kind == kind
-    img = case.scene.render(case.T, CAM)
-    det = detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
+    case, img, roi = _bench_frame(seed, index, kind)
+    det = detect_centre(img, roi)
     assert det.reason is None, det
     assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < tol
+
+
+def _bench_frame(seed: int, index: int, kind: str):
+    """A bench weed case of `kind`, its rendered NSV frame and its ROI."""
+    case = make_case(seed, index, CAM, TaskConfig().delta, False)
+    assert case.kind == kind
+    return case, case.scene.render(case.T, CAM), roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
 
 
 def _bench_weed(seed: int, index: int, kind: str = "clover"):
     """A bench weed frame: a function that runs the detector on it (with its ROI) and returns
     (ground error in m, stage-2 estimator)."""
-    case = make_case(seed, index, CAM, TaskConfig().delta, False)
-    assert case.kind == kind
-    img = case.scene.render(case.T, CAM)
-    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
+    case, img, roi = _bench_frame(seed, index, kind)
 
     def locate() -> tuple[float, str]:
         dbg: dict = {}
@@ -190,10 +192,7 @@ def test_two_leaf_rosette_in_a_line_is_no_straw(monkeypatch) -> None:
     so `green_blade` spares it. Found within 10 mm; at the old BLADE_GREEN 0.06, "no plant"."""
     import capm_field.candidates as cand
 
-    case = make_case(4, 40, CAM, TaskConfig().delta, False)
-    assert case.kind == "rosette"
-    img = case.scene.render(case.T, CAM)
-    roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
+    case, img, roi = _bench_frame(4, 40, "rosette")
     det = detect_centre(img, roi)
     assert det.reason is None, det
     assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.010
