@@ -33,6 +33,7 @@ Run
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 160 --seed 0
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 160 --seed 0 --roi
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --kinds clover,grass --save-fails fails/
+    PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 80 --seed 0 --person-shadow [--bare]
 
     A single case can be re-rendered with ``render(np.random.default_rng([seed, index]), kind)``.
 
@@ -1756,8 +1757,10 @@ def soil_normals(L: Layers, light: Light) -> None:
 
 
 # ============================================================================ lighting
-def sample_light(rng: np.random.Generator, notes: dict) -> Light:
-    kind = str(rng.choice(["overcast", "sun", "evening"], p=[0.35, 0.45, 0.2]))
+def sample_light(rng: np.random.Generator, notes: dict, person_shadow: bool = False) -> Light:
+    """Overcast, sun (15 % with the photographer's shadow) or evening; `person_shadow`: always sun
+    with the photographer's shadow."""
+    kind = "sun" if person_shadow else str(rng.choice(["overcast", "sun", "evening"], p=[0.35, 0.45, 0.2]))
     sdir = unit(rng.uniform(0, TAU))
     person = False
     if kind == "overcast":
@@ -1765,7 +1768,7 @@ def sample_light(rng: np.random.Generator, notes: dict) -> Light:
                       0.0, False)
     elif kind == "sun":
         elev = math.radians(rng.uniform(28, 72))
-        person = rng.random() < 0.15
+        person = person_shadow or rng.random() < 0.15
         light = Light(kind, elev, sdir, jit(rng, lin((255, 250, 240)), 0.0, 0.01),
                       jit(rng, lin((150, 170, 215)), 0.15, 0.03), float(rng.uniform(0.8, 5.0)), person)
     else:
@@ -2011,13 +2014,16 @@ def sample_size(rng: np.random.Generator) -> tuple[int, int]:
     return W, H
 
 
-def render(rng: np.random.Generator, kind: str) -> tuple[np.ndarray, np.ndarray, float, dict]:
-    """Render one photo of a single `kind` weed. Returns (BGR uint8, crown (u, v), S px, notes)."""
+def render(rng: np.random.Generator, kind: str, person_shadow: bool = False,
+           bare: bool = False) -> tuple[np.ndarray, np.ndarray, float, dict]:
+    """Render one photo of a single `kind` weed. Returns (BGR uint8, crown (u, v), S px, notes).
+    `person_shadow`: sun with the photographer's shadow in every photo; `bare`: no weed drawn (the
+    main one nor others; moss, dead leaves and straw stay), crown and S as if it were there."""
     notes: dict = {"kind": kind}
     W, H = sample_size(rng)
     notes["size"] = f"{W}x{H}"
     short = min(W, H)
-    light = sample_light(rng, notes)
+    light = sample_light(rng, notes, person_shadow)
 
     # --- main plant geometry, scaled and placed (never cut by the border)
     organs_u, pinfo = BUILDERS[kind](rng)
@@ -2059,7 +2065,7 @@ def render(rng: np.random.Generator, kind: str) -> tuple[np.ndarray, np.ndarray,
             for o in dl:
                 draw_organ(L, o, env, False)
             clutter.append("dead_leaf")
-    n_other = int(rng.choice([0, 1, 2], p=[0.68, 0.22, 0.1]))
+    n_other = 0 if bare else int(rng.choice([0, 1, 2], p=[0.68, 0.22, 0.1]))
     for _ in range(n_other):
         ok = add_other_weed(rng, L, env, W, H, crown, s_target)
         if ok:
@@ -2067,7 +2073,7 @@ def render(rng: np.random.Generator, kind: str) -> tuple[np.ndarray, np.ndarray,
     notes["clutter"] = clutter
 
     # --- the main weed
-    for o in organs:
+    for o in organs if not bare else []:
         draw_organ(L, o, env, True)
     ys, xs = np.nonzero(L.plant > 0.5)
     S = plant_diameter_px(xs, ys) if len(xs) else s_target
@@ -2156,6 +2162,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--roi", action="store_true", help="give the detector an ellipse ROI near the truth")
     ap.add_argument("--kinds", type=str, default="", help="comma separated subset of " + ",".join(KINDS))
     ap.add_argument("--save-fails", type=str, default="", metavar="DIR")
+    ap.add_argument("--person-shadow", action="store_true",
+                    help="every photo in sun with the photographer's shadow in it (15 %% of sunny ones otherwise)")
+    ap.add_argument("--bare", action="store_true",
+                    help="no weeds drawn: report how many photos get 'no_plant' (and where the others point)")
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -2175,7 +2185,7 @@ def main(argv: list[str] | None = None) -> int:
         kind = kinds[i % len(kinds)]
         rng = np.random.default_rng([args.seed, i])
         t0 = time.perf_counter()
-        img, truth, S, notes = render(rng, kind)
+        img, truth, S, notes = render(rng, kind, args.person_shadow, args.bare)
         t_render = time.perf_counter() - t0
         roi = None
         if args.roi:   # separate stream so the image does not depend on --roi
@@ -2195,10 +2205,20 @@ def main(argv: list[str] | None = None) -> int:
         row = dict(i=i, kind=kind, detected=detected, err=err, reason=reason, method=dbg.get("method"),
                    lat=lat, t_render=t_render, notes=notes, S=S)
         rows.append(row)
-        if fail_dir is not None and (not detected or err > 0.2):
+        if fail_dir is not None and ((reason != "no_plant") if args.bare else (not detected or err > 0.2)):
             cv2.imwrite(str(fail_dir / f"{args.seed}_{i}_{kind}.png"), draw_fail(img, truth, pix, S, roi))
 
-    print(f"field_photo_weeds: n={args.n} seed={args.seed} roi={'yes' if args.roi else 'no'}")
+    print(f"field_photo_weeds: n={args.n} seed={args.seed} roi={'yes' if args.roi else 'no'}"
+          + (" person_shadow" if args.person_shadow else "") + (" bare" if args.bare else ""))
+    if args.bare:  # no weed: every answer but "no_plant" is a false plant
+        answered = [r for r in rows if r["reason"] != "no_plant"]
+        print(f"no_plant {len(rows) - len(answered)} of {len(rows)} ({pct(1 - len(answered) / len(rows))}); "
+              f"reasons {dict(Counter(str(r['reason']) for r in rows))}")
+        for r in answered:
+            print(f"  {r['i']:4d} {str(r['reason']):<13} {str(r['method']):<14} | {notes_summary(r['notes'])}")
+        print(f"\nrender median {1000 * np.median([r['t_render'] for r in rows]):.0f} ms/image, "
+              f"total run time {time.perf_counter() - t_start:.1f} s")
+        return 0
     hdr = f"{'kind':<10} {'n':>4} {'det':>7} {'med':>6} {'p90':>6} {'<0.1S':>7} {'<0.2S':>7} {'wrong':>7} {'ms':>7}"
     print(hdr)
     print("-" * len(hdr))

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import cv2
@@ -41,6 +41,7 @@ from .candidates import (LC_RING, STRAW_ELONG, STRAW_ELONG_FULL, STRAW_RAW, cand
 from .centre_cascade import centre_fullres
 from .components import components
 from .order_stats import elongation, median, percentile
+from .shadow_regions import shadow_regions
 from .roi import ROI_MARGIN, Roi, RoiLike, as_roi, roi_from_troi, roi_mask
 from .vegetation import downscale, pooled_index, resize_down, soil_gains, vegetation_index
 from .vegetation_mask import group_components, hysteresis, threshold
@@ -87,50 +88,94 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
         win = _window(image_bgr, roi)
         if isinstance(win, Detection):
             return win
-        first: dict = {}
-        det = _detect(image_bgr, roi, debug, first=first, win=win)
-        if det.reason in ("no_plant", "ambiguous"):
-            # second look on the green–red axis of CIELAB: yellow-green leaves (young seedlings,
-            # chlorotic plants, warm light) reflect nearly as much red as green, so G − max(R, B)
-            # leaves them at the soil's level; only vivid candidates count (soil tints come up too)
-            # (also after an "ambiguous" first look: a pale plant split in two by G* is one in −a*)
-            second: dict = {}
-            det2 = _detect(image_bgr, roi, debug, vivid=True, first=second, win=win)
-            if (det.reason == "ambiguous" and det2.reason is None and second["best"] <= SMALL_GAIN * first["best"]
-                    and not _boxes_meet([second["box"]], first["contenders"])):
-                # the second look chose something else than the plants in question, and nothing
-                # clearly larger (a vivid speck) (a clover's centre lies between its leaflets'
-                # boxes: the chosen plant's box must meet one, not hold the centre)
-                return det
-            if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
-                return det2
-        elif det.reason is None and (first["best"] < SMALL_PLANT * win.n_in or first["feat"]["g_p90"] < PALE_G90
-                                     or first["feat"]["gsig"] < FAINT_SIGMA):
-            # a small first choice (seedling-sized) may be a vivid speck while the weed is a pale
-            # seedling only the second look segments; a first choice of low absolute greenness may
-            # be only the greenest part of a yellow-green plant, which −a* segments whole: take
-            # the second look's choice when it scores clearly higher (bench seeds 0–3: wrong
-            # 39 → 36, > 15 mm 110 → 106 for the small ones)
-            # (the second look's plant is chosen first; its centre is sought only if it is taken.
-            # Its debug entries join `debug` only then)
-            dbg2: dict | None = {} if debug is not None else None
-            second = {}
-            choice = _choose(image_bgr, win, vivid=True, debug=dbg2, first=second)
-            if isinstance(choice, _Choice) and (choice.best > SMALL_GAIN * first["best"] or (
-                    # or the same plant, segmented far more completely (yellow-green parts, petioles)
-                    second["feat"]["area"] >= WHOLE_GAIN * first["feat"]["area"]
-                    and _boxes_meet([second["box"]], [first["box"]]))):
-                det2 = _locate(image_bgr, win, choice, dbg2)
-                if det2.reason is None:
-                    if debug is not None and dbg2 is not None:
-                        _merge_debug(debug, dbg2)
-                    return det2
+        det, _ = _looks(image_bgr, win, debug)
+        if det.reason == "no_plant":
+            det = _in_shadow_parts(image_bgr, win, debug) or det
         return det
     except Exception:  # the contract is "never raise": a bug must not stop a mission ...
         # ... but it must not go unseen either: the traceback goes to the log (and so the run's)
         log.exception("weed-centre detector failed on a %s %s image; answering bad_image",
                       getattr(image_bgr, "shape", "?"), getattr(image_bgr, "dtype", type(image_bgr).__name__))
         return Detection(None, 0.0, "bad_image")
+
+
+def _looks(image_bgr: np.ndarray, win: _Window, debug: dict | None) -> tuple[Detection, dict]:
+    """Both looks at one window (G*, then CIELAB −a* where G* found no plant, an ambiguous one or a
+    small or pale one): the Detection, and the stage-1 "best" score and "feat"ures of the plant it
+    answers (an empty dict if none; see `_detect`)."""
+    first: dict = {}
+    det = _detect(image_bgr, None, debug, first=first, win=win)
+    if det.reason in ("no_plant", "ambiguous"):
+        # second look on the green–red axis of CIELAB: yellow-green leaves (young seedlings,
+        # chlorotic plants, warm light) reflect nearly as much red as green, so G − max(R, B)
+        # leaves them at the soil's level; only vivid candidates count (soil tints come up too)
+        # (also after an "ambiguous" first look: a pale plant split in two by G* is one in −a*)
+        second: dict = {}
+        det2 = _detect(image_bgr, None, debug, vivid=True, first=second, win=win)
+        if (det.reason == "ambiguous" and det2.reason is None and second["best"] <= SMALL_GAIN * first["best"]
+                and not _boxes_meet([second["box"]], first["contenders"])):
+            # the second look chose something else than the plants in question, and nothing
+            # clearly larger (a vivid speck) (a clover's centre lies between its leaflets'
+            # boxes: the chosen plant's box must meet one, not hold the centre)
+            return det, first
+        if det2.reason is None or (det.reason == "no_plant" and det2.reason != "no_plant"):
+            return det2, second
+    elif det.reason is None and (first["best"] < SMALL_PLANT * win.n_in or first["feat"]["g_p90"] < PALE_G90
+                                 or first["feat"]["gsig"] < FAINT_SIGMA):
+        # a small first choice (seedling-sized) may be a vivid speck while the weed is a pale
+        # seedling only the second look segments; a first choice of low absolute greenness may
+        # be only the greenest part of a yellow-green plant, which −a* segments whole: take
+        # the second look's choice when it scores clearly higher (bench seeds 0–3: wrong
+        # 39 → 36, > 15 mm 110 → 106 for the small ones)
+        # (the second look's plant is chosen first; its centre is sought only if it is taken.
+        # Its debug entries join `debug` only then)
+        dbg2: dict | None = {} if debug is not None else None
+        second = {}
+        choice = _choose(image_bgr, win, vivid=True, debug=dbg2, first=second)
+        if isinstance(choice, _Choice) and (choice.best > SMALL_GAIN * first["best"] or (
+                # or the same plant, segmented far more completely (yellow-green parts, petioles)
+                second["feat"]["area"] >= WHOLE_GAIN * first["feat"]["area"]
+                and _boxes_meet([second["box"]], [first["box"]]))):
+            det2 = _locate(image_bgr, win, choice, dbg2)
+            if det2.reason is None:
+                if debug is not None and dbg2 is not None:
+                    _merge_debug(debug, dbg2)
+                return det2, second
+    return det, first
+
+
+def _in_shadow_parts(image_bgr: np.ndarray, win: _Window, debug: dict | None) -> Detection | None:
+    """Both looks again in the lit and in the shadowed part of a window that a large cast shadow
+    splits (`capm_field.shadow_regions`), each with its own white balance and soil threshold;
+    the best-scoring plant of ≥ SHADOW_MIN_PLANT of its part, green in the camera's own colours
+    unless ≥ SHADOW_BIG of it, or None. Asked only when the whole window found no plant."""
+    best: tuple[float, Detection, dict | None] | None = None
+    for part, core in shadow_regions(win.small, win.inside):
+        n = int(np.count_nonzero(part))
+        if n < 16 or np.count_nonzero(core) < 16:
+            continue
+        sub = replace(win, inside=part, n_in=n, gains=soil_gains(win.small, core), soil=core)
+        dbg: dict | None = {} if debug is not None else None  # joins `debug` only if taken
+        det, chosen = _looks(image_bgr, sub, dbg)
+        f = chosen.get("feat", {})
+        if (det.reason is None and f["area"] >= SHADOW_MIN_PLANT * n
+                and (f["g_raw"] > SHADOW_RAW_G or f["area"] >= SHADOW_BIG * n)
+                and (best is None or chosen["best"] > best[0])):
+            best = (chosen["best"], det, dbg)
+    if best is None:
+        return None
+    if debug is not None and best[2] is not None:
+        _merge_debug(debug, best[2])
+        debug["shadow_part"] = True
+    return best[1]
+
+
+SHADOW_MIN_PLANT = 0.002  # least stage-1 area of a plant found in one part of a shadowed window, × the
+# part's pixels: the soil under sky light alone is tinted green where it is yellowish, and specks of it
+# and sharpening halos at the shadow's edge (≤ 0.1 % on bare frames) stand out of that part's statistics
+SHADOW_RAW_G = 0.0  # its median G − max(R, B) (raw, `g_raw`) must exceed this ... (the lower σ of a part made
+SHADOW_BIG = 0.01  # ... unless it is this × its part: olive straws crossing in a bench shadow, g_raw −0.03 and
+# 0.3 % of the part, a plant; found weeds have g_raw ≥ 0.004, but for a fat-hen lit by blue sky only, 6 %)
 
 
 SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below which the second look also runs
@@ -180,6 +225,7 @@ class _Window:
     inside: np.ndarray  # ROI mask on the stage-1 grid
     n_in: int  # its pixel count
     gains: np.ndarray  # soil white balance of the first look (`soil_gains`)
+    soil: np.ndarray | None = None  # where the soil statistics are measured, if not all of `inside`
 
     def to_full(self, p: np.ndarray) -> np.ndarray:
         """Stage-1 grid point (j, i) → full image (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
@@ -327,7 +373,9 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
     gains = win.gains ** VIVID_WB if vivid else win.gains
     vi = pooled_index(mid, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid)
     # soil statistics from every other row and column: the same percentiles in a quarter of the time
-    thr, soil_level, contrast = threshold(vi[::2, ::2][inside[::2, ::2]] if n_in >= 4096 else vi[inside])
+    at = inside if win.soil is None else win.soil
+    n_at = n_in if win.soil is None else int(np.count_nonzero(at))
+    thr, soil_level, contrast = threshold(vi[::2, ::2][at[::2, ::2]] if n_at >= 4096 else vi[at])
     mask = hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = components(mask)
     min_area = max(6.0, 1.5e-4 * n_in)
@@ -335,7 +383,7 @@ def _choose(img: np.ndarray, win: _Window, vivid: bool = False, debug: dict | No
     if not comps:
         return Detection(None, 0.0, "no_plant")
     # soil spread of the index outside the vegetation mask (robust: median → p90)
-    soil_px = vi[::2, ::2][(inside & ~mask)[::2, ::2]] if n_in >= 4096 else vi[inside & ~mask]
+    soil_px = vi[::2, ::2][(at & ~mask)[::2, ::2]] if n_at >= 4096 else vi[at & ~mask]
     sig = max((percentile(soil_px, 90) - soil_level) / 1.28, 1e-3) if soil_px.size >= 16 else 0.01
     # ROI centre and radius on the stage-1 grid (candidate centrality)
     if roi is not None:
