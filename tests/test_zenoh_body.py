@@ -225,6 +225,9 @@ def test_engaged_estop_holds_until_its_engager_releases_it(port, raw):
     with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST, estop_timeout_s=5.0) as bench:
         a, b = raw(), raw()
         token = a.liveliness().declare_token(Keys(RID).client("alpha"))  # alpha's session is open
+        # (liveliness arrives asynchronously: under load the server could still miss alpha's token
+        # when bravo asks to release, and rightly let it)
+        assert wait_for(lambda: "alpha" in bench.server._live_clients, 2.0)
         _checkin(a, "alpha", 1)
         assert wait_for(lambda: not bench.sim.estop, 1.0)
         ok, rep = _checkin(a, "alpha", 2, engage=True)
