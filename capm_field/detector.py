@@ -10,7 +10,9 @@ Classical pipeline, no learned weights, sizes relative to the plant or the searc
      colours) dropped; the rest grouped into plants and scored by green
      area and centrality; none → "no_plant", a close runner-up → "ambiguous". Either answer,
      or a small (seedling-sized) first choice, gets a second look on CIELAB −a* (yellow-green
-     leaves) that accepts vivid plants only;
+     leaves) that accepts vivid plants only; a window that a large cast shadow splits, where both
+     looks found no plant, gets both again in its lit and its shadowed part, each with its own soil
+     statistics (`capm_field.shadow_regions`);
   3. stage 2, find its centre (`capm_field.centre_cascade`): the chosen plant re-cut from the
      full-resolution frame at ~PLANT_PX across, centre from `capm_field.plant_centre` (stalk
      crossings, the tree median of geodesic distances to the leaf tips with leaf-axis votes, or
@@ -41,8 +43,8 @@ from .candidates import (LC_RING, STRAW_ELONG, STRAW_ELONG_FULL, STRAW_RAW, cand
 from .centre_cascade import centre_fullres
 from .components import components
 from .order_stats import elongation, median, percentile
-from .shadow_regions import shadow_regions
 from .roi import ROI_MARGIN, Roi, RoiLike, as_roi, roi_from_troi, roi_mask
+from .shadow_regions import shadow_regions
 from .vegetation import downscale, pooled_index, resize_down, soil_gains, vegetation_index
 from .vegetation_mask import group_components, hysteresis, threshold
 
