@@ -159,9 +159,10 @@ def _in_shadow_parts(image_bgr: np.ndarray, win: _Window, debug: dict | None) ->
         sub = replace(win, inside=part, n_in=n, gains=soil_gains(win.small, core), soil=core)
         dbg: dict | None = {} if debug is not None else None  # joins `debug` only if taken
         det, chosen = _looks(image_bgr, sub, dbg)
-        f = chosen.get("feat", {})
-        if (det.reason is None and f["area"] >= SHADOW_MIN_PLANT * n
-                and (f["g_raw"] > SHADOW_RAW_G or f["area"] >= SHADOW_BIG * n)
+        if det.reason is not None:
+            continue
+        f = chosen["feat"]
+        if (f["area"] >= SHADOW_MIN_PLANT * n and (f["g_raw"] > SHADOW_RAW_G or f["area"] >= SHADOW_BIG * n)
                 and (best is None or chosen["best"] > best[0])):
             best = (chosen["best"], det, dbg)
     if best is None:

@@ -17,6 +17,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from .vegetation import greenness
+
 SHADOW_CELLS = 16  # cells along the window's longer side: the soil's brightness is mapped per cell
 SHADOW_SOIL_G = 0.0  # G* (raw colours) at most of a soil pixel: plants and their leaves are left out
 SHADOW_CELL_SOIL = 0.25  # a cell's least share of soil pixels to be measured (else filled from its neighbours)
@@ -40,10 +42,10 @@ def shadow_regions(bgr: np.ndarray, inside: np.ndarray) -> list[tuple[np.ndarray
     n_in = int(np.count_nonzero(inside))
     if min(h, w) < 32 or n_in < 1024:
         return []
-    f = bgr.astype(np.float32)
-    b, g, r = f[..., 0], f[..., 1], f[..., 2]
-    soil = inside & ((g - np.maximum(r, b)) / (b + g + r + 30.0) <= SHADOW_SOIL_G)
-    lg = np.where(soil, np.log(0.114 * b + 0.587 * g + 0.299 * r + 8.0), np.nan)
+    bgr = np.ascontiguousarray(bgr)
+    soil = inside & (greenness(bgr) <= SHADOW_SOIL_G)
+    grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    lg = np.where(soil, np.log(grey + 8.0), np.nan)
     cs = int(math.ceil(max(h, w) / SHADOW_CELLS))
     ny, nx = -(-h // cs), -(-w // cs)
     pad = np.full((ny * cs, nx * cs), np.nan, np.float32)
@@ -76,7 +78,8 @@ def shadow_regions(bgr: np.ndarray, inside: np.ndarray) -> list[tuple[np.ndarray
 
 
 def _otsu(v: np.ndarray) -> tuple[float, float]:
-    """Otsu's split of sorted values: (threshold, separability η = between-class / total variance)."""
+    """Otsu's split of sorted values: (threshold, separability η = between-class / total variance).
+    Exact over ≤ SHADOW_CELLS² values (OpenCV's Otsu quantises to 256 levels and gives no η)."""
     n = len(v)
     c = np.cumsum(v)
     k = np.arange(1, n)  # the lower class is v[:k]
