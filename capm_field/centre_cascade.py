@@ -115,7 +115,9 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         groups = group_components(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
         g = next(gr for gr in groups if big in gr)
     plant = np.isin(lab, g)
-    if int(plant.sum()) < 3:
+    if int(plant.sum()) < 3 or plant.all():
+        # (a mask without one soil pixel in a crop reaching past the plant's box: its threshold
+        # has not told the plant from its soil, and its distance transform has no zero to measure from)
         return None, 0, 0.0
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
     ys_, xs_ = np.nonzero(plant)

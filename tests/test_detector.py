@@ -1683,3 +1683,19 @@ def test_candidate_colour_features_are_numpys_medians_of_their_definitions(seed,
     }
     for k, v in want.items():
         assert f[k] == float(np.median(v)), k
+
+
+def test_stage_two_without_one_soil_pixel_has_no_centre() -> None:
+    """A stage-2 crop that the threshold leaves all "plant" (a part look's low threshold on the
+    other part's brighter soil) has no soil to measure widths from: no centre, not a point at
+    the crop's corner from a distance transform without zeros (which overflowed)."""
+    import warnings
+
+    from capm_field.centre_cascade import centre_fullres
+
+    img = np.zeros((120, 160, 3), np.uint8)
+    img[:] = (60, 140, 70)  # green everywhere, including round the plant's box
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        uv, tips, sharp = centre_fullres(img, (60.0, 40.0, 82.0, 58.0), 0.02, -0.05, np.ones(3, np.float32), None)
+    assert uv is None and tips == 0
