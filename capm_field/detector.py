@@ -10,9 +10,10 @@ Classical pipeline, no learned weights, sizes relative to the plant or the searc
      colours) dropped; the rest grouped into plants and scored by green
      area and centrality; none → "no_plant", a close runner-up → "ambiguous". Either answer,
      or a small (seedling-sized) first choice, gets a second look on CIELAB −a* (yellow-green
-     leaves) that accepts vivid plants only; a window that a large cast shadow splits, where both
-     looks found no plant, gets both again in its lit and its shadowed part, each with its own soil
-     statistics (`capm_field.shadow_regions`);
+     leaves) that accepts vivid plants only; a window that a large cast shadow splits gets both
+     looks again in its lit and its shadowed part, each with its own soil statistics
+     (`capm_field.shadow_regions`): their plant is the answer where the whole window found none,
+     and replaces the whole window's answer if it is another plant scoring higher;
   3. stage 2, find its centre (`capm_field.centre_cascade`): the chosen plant re-cut from the
      full-resolution frame at ~PLANT_PX across, centre from `capm_field.plant_centre` (stalk
      crossings, the tree median of geodesic distances to the leaf tips with leaf-axis votes, or
@@ -181,8 +182,8 @@ def _in_shadow_parts(image_bgr: np.ndarray, win: _Window, debug: dict | None, be
 
 
 SHADOW_GAIN = 1.0  # × the whole window's choice's score that a part's other plant must exceed to replace it
-# (field-photo seeds 0–5 and the photographer's-shadow sets: 2 wrong answers right, a fat-hen outscoring a
-# small sunlit plant by 1.46× and one by 3.9×; no other answer moved, nor any on bench seeds 0–7)
+# (session 26, field-photo seeds 0–5 and the photographer's-shadow sets: 2 wrong answers right, fat-hens in
+# the shadow outscoring a small sunlit plant by 1.46× and 3.9×; bench seeds 0–7: no answer replaced)
 SHADOW_MIN_PLANT = 0.002  # least stage-1 area of a plant found in one part of a shadowed window, × the
 # part's pixels: the soil under sky light alone is tinted green where it is yellowish, and specks of it
 # and sharpening halos at the shadow's edge (≤ 0.1 % on bare frames) stand out of that part's statistics

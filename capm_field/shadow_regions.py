@@ -5,7 +5,7 @@ bluer (sky light) and noisier in the index than the sunlit one. One soil thresho
 (`capm_field.vegetation_mask.threshold`: median + 5 σ) gets σ from the mixture, up to three
 times what either soil alone measures, so a pale plant in either part stays under it. The
 detector (`capm_field.detector`) looks again in each part on its own, with that part's white
-balance and soil statistics, when the whole window found no plant.
+balance and soil statistics, after the whole window's looks (whether they found a plant or not).
 """
 
 from __future__ import annotations
