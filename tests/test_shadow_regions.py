@@ -4,11 +4,7 @@ or chose another plant than the one the part look finds."""
 
 from __future__ import annotations
 
-import functools
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -17,6 +13,7 @@ import pytest
 import capm_field.detector as detector
 from capm_field.detector import detect_centre
 from capm_field.shadow_regions import _cell_medians, shadow_regions
+from field_photos import field_photos
 
 
 def _soil(rng: np.random.Generator, shape=(240, 320), bgr=(80, 110, 150)) -> np.ndarray:
@@ -124,18 +121,6 @@ def test_cell_medians_are_the_medians_of_each_cells_log_grey(seed: int) -> None:
 
 # ---- the detector on frames of bench/field_photo_weeds.py (an independent photo renderer)
 
-@functools.cache
-def _field_photos():
-    """bench/field_photo_weeds.py as a module (bench/ is not a package; its dataclasses need it
-    in sys.modules while it loads)."""
-    path = Path(__file__).resolve().parents[1] / "bench" / "field_photo_weeds.py"
-    spec = importlib.util.spec_from_file_location("field_photo_weeds", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def _roi(fpw, seed: int, i: int, truth: np.ndarray, S: float):
     """The bench's ROI: a circle of 1.3 S round a point within 0.15 S of the crown."""
     r = np.random.default_rng([seed, i, 1])
@@ -152,7 +137,7 @@ SHADOWED = [(0, 158, False, True), (0, 158, False, False), (4, 152, False, False
 
 @pytest.mark.parametrize("seed, i, forced, with_roi", SHADOWED)
 def test_plant_hidden_by_a_shadowed_soil_statistics_is_found(seed, i, forced, with_roi, monkeypatch) -> None:
-    fpw = _field_photos()
+    fpw = field_photos()
     img, truth, S, notes = fpw.render(np.random.default_rng([seed, i]), fpw.KINDS[i % len(fpw.KINDS)], forced)
     assert "person_shadow" in notes["light"]
     roi = _roi(fpw, seed, i, truth, S) if with_roi else None
@@ -170,7 +155,7 @@ OUTSHONE = [(0, 18, False, 0.35), (0, 38, True, 0.1)]
 
 @pytest.mark.parametrize("seed, i, forced, tol", OUTSHONE)
 def test_plant_in_a_shadow_outscores_a_small_sunlit_one(seed, i, forced, tol, monkeypatch) -> None:
-    fpw = _field_photos()
+    fpw = field_photos()
     img, truth, S, notes = fpw.render(np.random.default_rng([seed, i]), fpw.KINDS[i % len(fpw.KINDS)], forced)
     assert "person_shadow" in notes["light"]
     det = detect_centre(img)
@@ -185,7 +170,7 @@ def test_bare_soil_in_a_shadow_stays_bare() -> None:
     (`bench/field_photo_weeds.py --person-shadow --bare`), with the bench's ROI: no plant on ≥ 18
     (measured 19, before and after the look into each part: the one answer is moss; over 60 frames
     57 with a ROI, 50 without, before and after)."""
-    fpw = _field_photos()
+    fpw = field_photos()
     bare = 0
     for i in range(20):
         img, truth, S, _ = fpw.render(np.random.default_rng([0, i]), fpw.KINDS[i % len(fpw.KINDS)], True, True)
