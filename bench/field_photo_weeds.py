@@ -2136,6 +2136,14 @@ def notes_summary(n: dict) -> str:
             f"{' clutter=' + cl if cl else ''}")
 
 
+def roi_near(seed: int, i: int, truth: np.ndarray, S: float) -> tuple:
+    """The ROI of case i with --roi: an ellipse-style circle of 1.3 S round a point within 0.15 S of
+    the crown, from its own stream (so the image does not depend on --roi)."""
+    r2 = np.random.default_rng([seed, i, 1])
+    off = unit(r2.uniform(0, TAU)) * 0.15 * S * math.sqrt(r2.random())
+    return ((float(truth[0] + off[0]), float(truth[1] + off[1])), (1.3 * S, 1.3 * S), 0.0)
+
+
 def draw_fail(img: np.ndarray, truth: np.ndarray, pix: tuple[float, float] | None, S: float,
               roi: tuple | None) -> np.ndarray:
     out = img.copy()
@@ -2187,11 +2195,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         img, truth, S, notes = render(rng, kind, args.person_shadow, args.bare)
         t_render = time.perf_counter() - t0
-        roi = None
-        if args.roi:   # separate stream so the image does not depend on --roi
-            r2 = np.random.default_rng([args.seed, i, 1])
-            off = unit(r2.uniform(0, TAU)) * 0.15 * S * math.sqrt(r2.random())
-            roi = ((float(truth[0] + off[0]), float(truth[1] + off[1])), (1.3 * S, 1.3 * S), 0.0)
+        roi = roi_near(args.seed, i, truth, S) if args.roi else None
         dbg: dict = {}
         t1 = time.perf_counter()
         try:

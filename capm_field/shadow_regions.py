@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from .order_stats import median, percentile
+
 SHADOW_CELLS = 16  # cells along the window's longer side: the soil's brightness is mapped per cell
 SHADOW_STEP = 2  # the map is measured on every this-th pixel in each direction
 SHADOW_CELL_SOIL = 0.25  # a cell's least share of soil pixels to be measured (else filled from its neighbours)
@@ -60,7 +62,7 @@ def shadow_regions(bgr: np.ndarray, inside: np.ndarray) -> list[tuple[np.ndarray
     dark, lit = v[v <= t], v[v > t]
     if min(len(dark), len(lit)) < SHADOW_SHARE * len(v) or eta < SHADOW_SEP:
         return []
-    if float(np.median(lit)) - float(np.median(dark)) < math.log(SHADOW_RATIO):
+    if median(lit) - median(dark) < math.log(SHADOW_RATIO):
         return []
     # cells without enough soil (a plant, the ROI's outside) take the nearest measured cell's value
     idx = ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
@@ -87,8 +89,8 @@ def _may_split(bgr: np.ndarray, inside: np.ndarray, nx: int, ny: int) -> bool:
     v = np.log(g[share >= 0.5] + 8.0)
     if len(v) < 8:
         return True  # too few cells to tell: the full test decides
-    lo, hi = np.percentile(v, (15, 85))
-    return float(hi - lo) >= SHADOW_SPREAD
+    lo, hi = percentile(v, (15, 85))
+    return hi - lo >= SHADOW_SPREAD
 
 
 SHADOW_SPREAD = 0.3  # log grey: the first test's least spread (a shadow needs log 1.5 ≈ 0.41 between its classes)
@@ -100,8 +102,8 @@ def _cell_medians(grey: np.ndarray, soil: np.ndarray, cs: int, ny: int, nx: int,
     """(median log(grey + 8) of the `soil` pixels of each cs × cs cell (NaN where none), their
     count), (ny, nx) each; `grey` and `soil` hold every `step`-th pixel of the window. From one
     histogram of the 8-bit grey per cell: the same medians as sorting each cell's log values (log
-    is monotonic; an even count averages the two middle ones, in float32), ~10× faster than
-    NaN-aware medians over the cells."""
+    is monotonic; an even count averages the two middle ones, in float32), without np.nanmedian's
+    loop over the cells."""
     h, w = grey.shape
     cid = (np.arange(0, h * step, step) // cs)[:, None] * nx + (np.arange(0, w * step, step) // cs)[None, :]
     sel = soil.ravel()

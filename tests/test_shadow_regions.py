@@ -121,13 +121,6 @@ def test_cell_medians_are_the_medians_of_each_cells_log_grey(seed: int) -> None:
 
 # ---- the detector on frames of bench/field_photo_weeds.py (an independent photo renderer)
 
-def _roi(fpw, seed: int, i: int, truth: np.ndarray, S: float):
-    """The bench's ROI: a circle of 1.3 S round a point within 0.15 S of the crown."""
-    r = np.random.default_rng([seed, i, 1])
-    off = fpw.unit(r.uniform(0, fpw.TAU)) * 0.15 * S * math.sqrt(r.random())
-    return ((float(truth[0] + off[0]), float(truth[1] + off[1])), (1.3 * S, 1.3 * S), 0.0)
-
-
 # (seed, case, the photographer's shadow forced, with a ROI): "no_plant" before the look into each
 # part. Measured with it: 0.03 S from the crown (a fat-hen half in the photographer's shadow), grass
 # 0.004 S; forced (`--person-shadow`): a plantain, a thistle and a clover within 0.2 S
@@ -140,7 +133,7 @@ def test_plant_hidden_by_a_shadowed_soil_statistics_is_found(seed, i, forced, wi
     fpw = field_photos()
     img, truth, S, notes = fpw.render(np.random.default_rng([seed, i]), fpw.KINDS[i % len(fpw.KINDS)], forced)
     assert "person_shadow" in notes["light"]
-    roi = _roi(fpw, seed, i, truth, S) if with_roi else None
+    roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
     det = detect_centre(img, roi)
     assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.2 * S, det
     monkeypatch.setattr(detector, "_in_shadow_parts", lambda *a, **k: None)
@@ -174,7 +167,7 @@ def test_bare_soil_in_a_shadow_stays_bare() -> None:
     bare = 0
     for i in range(20):
         img, truth, S, _ = fpw.render(np.random.default_rng([0, i]), fpw.KINDS[i % len(fpw.KINDS)], True, True)
-        bare += detect_centre(img, _roi(fpw, 0, i, truth, S)).reason == "no_plant"
+        bare += detect_centre(img, fpw.roi_near(0, i, truth, S)).reason == "no_plant"
     assert bare >= 18, bare
 
 
