@@ -131,6 +131,17 @@ def _large_and_coloured(f: dict) -> bool:
     return big or f["area_frac"] >= HUGE_FRAC and f["gb"] >= HUGE_GB and f["sat"] >= HUGE_SAT
 
 
+def _mealy(f: dict) -> bool:
+    """Second look: a plant filling much of the window (≥ MEALY_FRAC) whose leaves a mealy or waxy
+    bloom makes whitish (fat-hen, thistles: gb and saturation below any other rule's) but that is
+    green above both red and blue in the camera's own colours (g_raw ≥ MEALY_RAW, gm_raw ≥ MEALY_GM)
+    and far above the soil (≥ MEALY_SIGMA σ)."""
+    return f["area_frac"] >= MEALY_FRAC and f["g_raw"] >= MEALY_RAW and f["gm_raw"] >= MEALY_GM and f["gsig"] >= MEALY_SIGMA
+
+
+MEALY_FRAC, MEALY_RAW, MEALY_GM, MEALY_SIGMA = 0.12, 0.02, 0.045, 8.0
+
+
 def _cyan_green(f: dict) -> bool:
     """Second look: blue-green leaves that the soil white balance turned cyan (a reddish soil's
     gains lift blue, and cool light or a glaucous bloom already puts B ≈ G): blue at or just above
@@ -182,6 +193,8 @@ def plant_like(f: dict, vivid: bool = False) -> bool:
         # large and green above both red and blue, in the camera's own colours and after the
         # white balance alike: a leaf, however wide the soil's spread (a two-tone soil puts σ so
         # high that a grass clearly above it stands only 4 σ out)
+        return True
+    if vivid and _mealy(f):
         return True
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not _large_and_coloured(f) and not _stands_out(f):

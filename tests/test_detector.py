@@ -1720,3 +1720,22 @@ def test_a_field_photo_is_read_the_same_at_any_size(i: int) -> None:
         assert det.reason is None, (side, det)
         u, v = ((det.pixel[0] + 0.5) / k - 0.5, (det.pixel[1] + 0.5) / k - 0.5)  # back to the rendered photo
         assert math.hypot(u - truth[0], v - truth[1]) < 0.15 * S, (side, det)
+
+
+@pytest.mark.parametrize("seed, i", [(0, 108), (4, 28)])
+def test_a_mealy_plant_filling_the_roi_is_a_plant(seed: int, i: int, monkeypatch) -> None:
+    """Two fat-hens of bench/field_photo_weeds.py (an independent renderer) with its ROI: the mealy
+    bloom leaves them whitish (gb 0.04–0.07, saturation 0.14–0.21 after the white balance, below every
+    other colour rule), but green above red and blue in the raw image, and they fill ~20 % of the
+    window. Found within 0.2 S (measured 0.13 and 0.01 S); "no_plant" without the rule (`_mealy`)."""
+    from field_photos import field_photos
+
+    from capm_field import candidates
+
+    fpw = field_photos()
+    img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), "fathen")
+    roi = fpw.roi_near(seed, i, truth, S)
+    det = detect_centre(img, roi)
+    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.2 * S, det
+    monkeypatch.setattr(candidates, "MEALY_FRAC", math.inf)
+    assert detect_centre(img, roi).reason == "no_plant"
