@@ -139,7 +139,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     clusters. A stalk is a straight piece of line off the leaves' broad parts (≥ MIN_LEN ×
     size, reaching ≥ AWAY from them) whose one end touches a leaf (within ATTACH); the centre
     lies at or beyond its other, free end (within REACH), within MAX_BARE of the plant and
-    within the hull of the leaves.
+    within the hull of the leaves (or anywhere there if ≥ FAN_STALKS directions meet).
     """
     if not has_leaf_clusters(plant):
         return None, None
@@ -234,15 +234,34 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     ly, lx = np.nonzero(lv)
     hull = cv2.convexHull(np.c_[lx, ly].astype(np.float32))
 
-    def plausible(P: np.ndarray | None) -> np.ndarray | None:
+    def plausible(P: np.ndarray | None, fan: bool = False) -> np.ndarray | None:
         if P is None or not (0 <= P[0] < w and 0 <= P[1] < h):
             return None
         if off_plant[int(P[1]), int(P[0])] > MAX_BARE * size:
             return None
         # leaves sit round their centre: it lies within the hull of the leaves (the plant's and
-        # those its stalks carry), not out where straw or a stone edge crosses a stalk
-        if cv2.pointPolygonTest(hull, (float(P[0]), float(P[1])), True) < -HULL_TOL * size:
+        # those its stalks carry), not out where straw or a stone edge crosses a stalk ... unless
+        # a fan of stalks meets there (a leaf the index missed would have closed the hull)
+        if cv2.pointPolygonTest(hull, (float(P[0]), float(P[1])), True) < -HULL_TOL * size and not fan:
             return None
         return P
 
-    return plausible(X), plausible(lone)
+    fan = X is not None and _directions(segs, X, max(1.5, TOL * size), REACH * size) >= FAN_STALKS
+    return plausible(X, fan), plausible(lone)
+
+
+FAN_STALKS = 3  # stalks of ≥ this many directions (≥ FAN_APART apart) meeting at one point: a centre even
+FAN_APART = math.radians(20)  # outside the leaves' hull (straw crossing a stalk gives two)
+
+
+def _directions(segs: list, X: np.ndarray, tol: float, reach: float) -> int:
+    """How many distinct directions (≥ FAN_APART apart) the pieces whose line passes within `tol`
+    of X, on their free side (as in `meeting_point(directed=True)`), have."""
+    angles: list[float] = []
+    for c, d, hl, _ in segs:
+        v = X - c
+        if abs(v[0] * d[1] - v[1] * d[0]) <= tol and 0.0 <= float(v @ d) <= hl + reach:
+            a = math.atan2(d[1], d[0])
+            if all(abs((a - b + math.pi) % (2 * math.pi) - math.pi) >= FAN_APART for b in angles):
+                angles.append(a)
+    return len(angles)

@@ -1739,3 +1739,23 @@ def test_a_mealy_plant_filling_the_roi_is_a_plant(seed: int, i: int, monkeypatch
     assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.2 * S, det
     monkeypatch.setattr(candidates, "MEALY_FRAC", math.inf)
     assert detect_centre(img, roi).reason == "no_plant"
+
+
+def test_a_fan_of_stalks_meeting_outside_the_leaves_hull_is_the_centre(monkeypatch) -> None:
+    """bench/field_photo_weeds.py seed 0 case 43 with its ROI: a clover whose reddish petioles fan out
+    from the crown to trefoils on one side; the palest trefoil stays under the threshold, so the crown
+    lies outside the hull of the leaves found. Seven stalk directions meet there: found within 0.1 S
+    (measured 0.01 S); 0.46 S off (a trefoil) when a meeting outside the hull needs more directions
+    than there are (`stalks.FAN_STALKS`)."""
+    from field_photos import field_photos
+
+    from capm_field import stalks
+
+    fpw = field_photos()
+    img, truth, S, _ = fpw.render(np.random.default_rng([0, 43]), "clover")
+    roi = fpw.roi_near(0, 43, truth, S)
+    det = detect_centre(img, roi)
+    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.1 * S, det
+    monkeypatch.setattr(stalks, "FAN_STALKS", 99)
+    det = detect_centre(img, roi)
+    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) > 0.3 * S, det
