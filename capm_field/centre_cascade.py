@@ -26,11 +26,17 @@ ONE_PEAK_HUB = 0.145  # a plant of ≥ 2 separate parts but one vote peak (small
 # that compound_centre would answer: rosettes and grass ≤ 0.138, clovers ≥ 0.146; answers: 4 clovers 38.0 → 1.9,
 # 25.5 → 1.6, 22.4 → 1.1, 18.8 → 13.9 mm, a rosette of 0.159 1.4 → 20.8 mm). Its compound flag is not used
 # (rosettes with such hubs went to the geometric median: ~30 answers worse)
+FINE_STALK_PX = 200  # plant windows of ≥ this many image px whose stalks the ≤ stalks.MAX_PX grid did not
+# show: searched again at ≤ this px, if the plant has compound leaves (clover trefoils: pale petioles 3–5 px
+# wide fade into the soil's texture at a pitch ≥ 5 px). Field-photo seeds 0–5 and the shadow set: 21 answers
+# better (0.33 → 0.02 S, 0.35 → 0.04 S), 2 worse (0.25 → 0.31, 0.03 → 0.06 S); bench seeds 0–7 one clover
+# 6.7 → 3.3 mm, nothing else (its windows are smaller). For every plant and from 100 px windows: bench seed 3
+# two clovers 8.3 → 27.9, 0.8 → 5.5 mm and a fat-hen's vein crossing taken, ~+50 ms on such a frame
 STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
 
 
 def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
-                 lab_index: bool, thr: float, soil: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+                 lab_index: bool, thr: float, soil: float, max_px: int = stalks.MAX_PX) -> tuple[np.ndarray | None, np.ndarray | None]:
     """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end) for a plant on the
     stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
     It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plants
@@ -42,7 +48,7 @@ def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant:
     nh, nw = plant.shape
     H, W = img.shape[:2]
     span = max(nw * kx, nh * ky)  # the stage-2 window in image pixels
-    p = max(1.0, span / stalks.MAX_PX)  # pitch of the stalk grid, image pixels
+    p = max(1.0, span / max_px)  # pitch of the stalk grid, image pixels
     m = stalks.MARGIN * span
     xa, ya = max(int(math.floor(X0 - m)), 0), max(int(math.floor(Y0 - m)), 0)
     xb, yb = min(int(math.ceil(X0 + nw * kx + m)), W), min(int(math.ceil(Y0 + nh * ky + m)), H)
@@ -158,13 +164,18 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
     lone = None  # the centre end of a lone stalk between two leaf clusters (after compound_centre)
     if uv is None and n_peaks >= STALK_PEAKS:
         uv, lone = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
+        if uv is None and lone is None and FINE_STALK_PX and max(X1 - X0, Y1 - Y0) >= FINE_STALK_PX:
+            hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
+            if compound_leaf.has_compound_leaves(hubs):
+                uv, _ = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil, FINE_STALK_PX)
         if uv is not None:
             method = "stalk_centre"
     if uv is None and (n_peaks >= 2 or n_peaks == 1 and separate_parts(plant) >= 2):
         # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
         # not show: the rays back from the hubs (after the stalk estimators, which are exact
         # when they answer: 0.3–2 mm cases became 5–12 mm when this came first)
-        hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
+        if hubs is None:
+            hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
         if n_peaks < 2 and compound_leaf.strongest_hub(hubs) < ONE_PEAK_HUB:
             hubs = None
         else:

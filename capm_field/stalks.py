@@ -182,9 +182,9 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
         if per_dir[k] + per_dir[(k + 1) % N_DIRS] < MIN_LEN * size:
             continue  # too few pixels for one piece
         band = (on & ((idx == k) | (idx == (k + 1) % N_DIRS))).astype(np.uint8)
-        by, bx = np.nonzero(band)  # work in the band's box (+ the closing's reach)
-        y0, x0 = max(int(by.min()) - L, 0), max(int(bx.min()) - L, 0)
-        band = band[y0:int(by.max()) + L + 1, x0:int(bx.max()) + L + 1]
+        bx0, by0, bw, bh = cv2.boundingRect(band)  # work in the band's box (+ the closing's reach)
+        y0, x0 = max(by0 - L, 0), max(bx0 - L, 0)
+        band = band[y0:by0 + bh + L, x0:bx0 + bw + L]
         # bridge short breaks along the direction (a stalk under a speck of soil or a leaf edge)
         th = math.pi * (k + 0.5) / N_DIRS
         ker = np.zeros((L, L), np.uint8)
@@ -195,8 +195,9 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
         for c in range(1, n):
             if stats[c, cv2.CC_STAT_AREA] < MIN_LEN * size:
                 continue
-            yy, xx = np.nonzero(lab == c)
-            yy, xx = yy + y0, xx + x0
+            cl, ct, cw, ch = (int(v) for v in stats[c, :4])  # (its box: the same pixels, in the same order)
+            yy, xx = np.nonzero(lab[ct:ct + ch, cl:cl + cw] == c)
+            yy, xx = yy + (y0 + ct), xx + (x0 + cl)
             P = np.c_[xx, yy].astype(float)
             m = P.mean(0)
             ev, evec = np.linalg.eigh(np.cov((P - m).T) + 1e-9 * np.eye(2))
