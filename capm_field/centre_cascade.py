@@ -30,8 +30,9 @@ FINE_STALK_PX = 200  # plant windows of ≥ this many image px whose stalks the 
 # show: searched again at ≤ this px, if the plant has compound leaves (clover trefoils: pale petioles 3–5 px
 # wide fade into the soil's texture at a pitch ≥ 5 px). Field-photo seeds 0–5 and the shadow set: 21 answers
 # better (0.33 → 0.02 S, 0.35 → 0.04 S), 2 worse (0.25 → 0.31, 0.03 → 0.06 S); bench seeds 0–7 one clover
-# 6.7 → 3.3 mm, nothing else (its windows are smaller). For every plant and from 100 px windows: bench seed 3
-# two clovers 8.3 → 27.9, 0.8 → 5.5 mm and a fat-hen's vein crossing taken, ~+50 ms on such a frame
+# 6.7 → 3.3 mm, nothing else (its windows are smaller); +35–41 ms on the 3 of bench seed 0's 300 frames where
+# it runs. From 100 px windows: bench seed 3 a clover 8.3 → 27.9 mm; for every plant, not only compound-leaved
+# ones: a field-photo fat-hen's leaf veins and a stone's edge taken for stalks (0.02 → 0.57 S)
 STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
 
 
