@@ -1780,3 +1780,21 @@ def test_pale_petioles_of_a_large_clover_are_found_on_a_finer_grid(seed: int, i:
     monkeypatch.setattr(centre_cascade, "FINE_STALK_PX", 0)
     det = detect_centre(img, roi)
     assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) > 0.3 * S, det
+
+
+@pytest.mark.parametrize("seed, i", [(0, 108), (5, 8)])
+def test_a_mealy_plant_outscores_a_small_green_one_in_a_whole_photo(seed: int, i: int, monkeypatch) -> None:
+    """The same kind of fat-hen without a ROI, 3–7 % of the photo: a small vivid plant elsewhere was the
+    answer (0.85–0.90 S off) while the mealy one failed every colour rule; found within 0.1 S
+    (measured 0.02 S each), and the small plant again without the rule."""
+    from field_photos import field_photos
+
+    from capm_field import candidates
+
+    fpw = field_photos()
+    img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), "fathen")
+    det = detect_centre(img)
+    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.1 * S, det
+    monkeypatch.setattr(candidates, "MEALY_FRAC", math.inf)
+    det = detect_centre(img)
+    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) > 0.5 * S, det
