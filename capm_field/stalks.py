@@ -251,18 +251,19 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     return plausible(X, fan), plausible(lone)
 
 
-FAN_STALKS = 3  # stalks of ≥ this many directions (≥ FAN_APART apart) meeting at one point: a centre even
+FAN_STALKS = 3  # stalks of ≥ this many orientations (≥ FAN_APART apart) meeting at one point: a centre even
 FAN_APART = math.radians(20)  # outside the leaves' hull (straw crossing a stalk gives two)
 
 
 def _directions(segs: list, X: np.ndarray, tol: float, reach: float) -> int:
-    """How many distinct directions (≥ FAN_APART apart) the pieces whose line passes within `tol`
-    of X, on their free side (as in `meeting_point(directed=True)`), have."""
+    """How many distinct line orientations (≥ FAN_APART apart, modulo π: a piece between two leaves
+    comes in `segs` both ways) the pieces whose line passes within `tol` of X, on their free side
+    (as in `meeting_point(directed=True)`), have."""
     angles: list[float] = []
     for c, d, hl, _ in segs:
         v = X - c
         if abs(v[0] * d[1] - v[1] * d[0]) <= tol and 0.0 <= float(v @ d) <= hl + reach:
-            a = math.atan2(d[1], d[0])
-            if all(abs((a - b + math.pi) % (2 * math.pi) - math.pi) >= FAN_APART for b in angles):
+            a = math.atan2(d[1], d[0]) % math.pi
+            if all(min(abs(a - b), math.pi - abs(a - b)) >= FAN_APART for b in angles):
                 angles.append(a)
     return len(angles)
