@@ -40,8 +40,8 @@ def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant:
                  lab_index: bool, thr: float, soil: float, max_px: int = stalks.MAX_PX) -> tuple[np.ndarray | None, np.ndarray | None]:
     """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end) for a plant on the
     stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
-    It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plants
-    over stalks.MAX_PX), on a window reaching stalks.MARGIN × the plant's size round it (a
+    It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plant
+    windows over `max_px`, stalks.MAX_PX unless the finer second search), on a window reaching stalks.MARGIN × the plant's size round it (a
     clover's centre may lie outside the leaves that stage 1 grouped); answers in stage-2 grid
     pixels."""
     if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
