@@ -26,24 +26,26 @@ ONE_PEAK_HUB = 0.145  # a plant of ≥ 2 separate parts but one vote peak (small
 # that compound_centre would answer: rosettes and grass ≤ 0.138, clovers ≥ 0.146; answers: 4 clovers 38.0 → 1.9,
 # 25.5 → 1.6, 22.4 → 1.1, 18.8 → 13.9 mm, a rosette of 0.159 1.4 → 20.8 mm). Its compound flag is not used
 # (rosettes with such hubs went to the geometric median: ~30 answers worse)
-FINE_STALK_PX = 200  # plant windows of ≥ this many image px whose stalks the ≤ stalks.MAX_PX grid did not
-# show: searched again at ≤ this px, if the plant has compound leaves (clover trefoils: pale petioles 3–5 px
-# wide fade into the soil's texture at a pitch ≥ 5 px). Field-photo seeds 0–5 and the shadow set: 21 answers
-# better (0.33 → 0.02 S, 0.35 → 0.04 S), 2 worse (0.25 → 0.31, 0.03 → 0.06 S); bench seeds 0–7 one clover
-# 6.7 → 3.3 mm, nothing else (its windows are smaller); +35–41 ms on the 3 of bench seed 0's 300 frames where
-# it runs. From 100 px windows: bench seed 3 a clover 8.3 → 27.9 mm; for every plant, not only compound-leaved
-# ones: a field-photo fat-hen's leaf veins and a stone's edge taken for stalks (0.02 → 0.57 S)
+FINE_STALK_PX = 200  # (0: off) plant windows of ≥ this many image px whose stalks the ≤ stalks.MAX_PX
+# grid did not show: searched again at ≤ this px, if the plant has compound leaves (clover trefoils: pale
+# petioles 3–5 px wide fade into the soil's texture at a pitch ≥ 5 px). Field-photo seeds 0–5 and the shadow
+# set: 21 answers better (0.33 → 0.02 S, 0.35 → 0.04 S), 2 worse (0.25 → 0.31, 0.03 → 0.06 S); bench seeds
+# 0–7 one clover 6.7 → 3.3 mm, nothing else (its windows are smaller); +35–41 ms on the 3 of bench seed 0's
+# 300 frames where it runs. From 100 px windows: bench seed 3 a clover 8.3 → 27.9 mm; for every plant, not
+# only compound-leaved ones: a field-photo fat-hen's leaf veins and a stone's edge taken for stalks (0.02 →
+# 0.57 S)
 STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
 
 
 def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
-                 lab_index: bool, thr: float, soil: float, max_px: int = stalks.MAX_PX) -> tuple[np.ndarray | None, np.ndarray | None]:
+                 lab_index: bool, thr: float, soil: float,
+                 max_px: int = stalks.MAX_PX) -> tuple[np.ndarray | None, np.ndarray | None]:
     """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end) for a plant on the
     stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
     It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plant
-    windows over `max_px`, stalks.MAX_PX unless the finer second search), on a window reaching stalks.MARGIN × the plant's size round it (a
-    clover's centre may lie outside the leaves that stage 1 grouped); answers in stage-2 grid
-    pixels."""
+    windows over `max_px`: stalks.MAX_PX, or FINE_STALK_PX in the second search), on a window
+    reaching stalks.MARGIN × the plant's size round it (a clover's centre may lie outside the
+    leaves that stage 1 grouped); answers in stage-2 grid pixels."""
     if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
         return None, None
     nh, nw = plant.shape

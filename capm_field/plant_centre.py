@@ -140,8 +140,8 @@ def meeting_point(segs: list, tol: float, reach: float, directed: bool = False) 
     def beyond(along: float, h: float) -> bool:
         return h - tol <= (along if directed else abs(along)) <= h + reach
 
-    def passes(along: float, h: float) -> bool:  # directed: anywhere from the piece's middle on
-        return (0.0 <= along <= h + reach) if directed else beyond(along, h)
+    def passes(along: float, h: float) -> bool:
+        return _passes(along, h, tol, reach, directed)
 
     best, best_sup = None, 0.0
     for i in range(len(segs)):
@@ -158,11 +158,7 @@ def meeting_point(segs: list, tol: float, reach: float, directed: bool = False) 
             if not (beyond(a, hi) and passes(b, hj) or passes(a, hi) and beyond(b, hj)):
                 continue
             X = ci + a * di
-            sup = 0.0
-            for (c, d, h, w) in segs:
-                v = X - c
-                if abs(v[0] * d[1] - v[1] * d[0]) <= tol and passes(float(v @ d), h):
-                    sup += w
+            sup = sum(w for (_, _, _, w) in supporting(segs, X, tol, reach, directed))
             if sup > best_sup:
                 best, best_sup = X, sup
     if best is None:
@@ -170,17 +166,34 @@ def meeting_point(segs: list, tol: float, reach: float, directed: bool = False) 
     # least-squares point of the supporting lines
     A = np.zeros((2, 2))
     bb = np.zeros(2)
-    nsup = 0
-    for (c, d, h, w) in segs:
-        v = best - c
-        if abs(v[0] * d[1] - v[1] * d[0]) <= tol and passes(float(v @ d), h):
-            Pm = np.eye(2) - np.outer(d, d)
-            A += w * Pm
-            bb += w * Pm @ c
-            nsup += 1
-    if nsup < 2:
+    sup = supporting(segs, best, tol, reach, directed)
+    for (c, d, h, w) in sup:
+        Pm = np.eye(2) - np.outer(d, d)
+        A += w * Pm
+        bb += w * Pm @ c
+    if len(sup) < 2:
         return None
     return np.linalg.solve(A + 1e-9 * np.eye(2), bb)
+
+
+def supporting(segs: list, X: np.ndarray, tol: float, reach: float, directed: bool = False) -> list:
+    """The pieces of `segs` (centre point, unit direction d, half-length h, weight) whose line passes
+    within `tol` of X, with X beyond an end (between h − tol and h + reach from the middle; with
+    `directed`, anywhere from the middle on to h + reach, the way d points): those `meeting_point` counts."""
+    out = []
+    for seg in segs:
+        c, d, h, _ = seg
+        v = X - c
+        if abs(v[0] * d[1] - v[1] * d[0]) <= tol and _passes(float(v @ d), h, tol, reach, directed):
+            out.append(seg)
+    return out
+
+
+def _passes(along: float, h: float, tol: float, reach: float, directed: bool) -> bool:
+    """Whether a point `along` from a piece's middle lies where `meeting_point` looks (see `supporting`)."""
+    if directed:  # anywhere from the piece's middle on
+        return 0.0 <= along <= h + reach
+    return h - tol <= abs(along) <= h + reach
 
 
 HUB_MIN_ROUND = 0.022

@@ -22,7 +22,7 @@ import numpy as np
 
 from .components import components
 from .order_stats import percentile
-from .plant_centre import HUB_OPEN, HULL_TOL, meeting_point
+from .plant_centre import HUB_OPEN, HULL_TOL, meeting_point, supporting
 
 SIGMA = 1.0  # px: Gaussian scale of the line filter (stalks 1–3 px wide on the stalk grid)
 SEG_LEN = 0.12  # × plant size: the neighbourhood (3 σ) over which line directions must agree
@@ -139,7 +139,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     clusters. A stalk is a straight piece of line off the leaves' broad parts (≥ MIN_LEN ×
     size, reaching ≥ AWAY from them) whose one end touches a leaf (within ATTACH); the centre
     lies at or beyond its other, free end (within REACH), within MAX_BARE of the plant and
-    within the hull of the leaves (or anywhere there if ≥ FAN_STALKS directions meet).
+    within the hull of the leaves (or anywhere there if ≥ FAN_STALKS orientations meet).
     """
     if not has_leaf_clusters(plant):
         return None, None
@@ -257,13 +257,10 @@ FAN_APART = math.radians(20)  # outside the leaves' hull (straw crossing a stalk
 
 def _directions(segs: list, X: np.ndarray, tol: float, reach: float) -> int:
     """How many distinct line orientations (≥ FAN_APART apart, modulo π: a piece between two leaves
-    comes in `segs` both ways) the pieces whose line passes within `tol` of X, on their free side
-    (as in `meeting_point(directed=True)`), have."""
+    comes in `segs` both ways) the pieces that `meeting_point(directed=True)` counts at X have."""
     angles: list[float] = []
-    for c, d, hl, _ in segs:
-        v = X - c
-        if abs(v[0] * d[1] - v[1] * d[0]) <= tol and 0.0 <= float(v @ d) <= hl + reach:
-            a = math.atan2(d[1], d[0]) % math.pi
-            if all(min(abs(a - b), math.pi - abs(a - b)) >= FAN_APART for b in angles):
-                angles.append(a)
+    for _, d, _, _ in supporting(segs, X, tol, reach, directed=True):
+        a = math.atan2(d[1], d[0]) % math.pi
+        if all(min(abs(a - b), math.pi - abs(a - b)) >= FAN_APART for b in angles):
+            angles.append(a)
     return len(angles)

@@ -1,9 +1,11 @@
-"""bench/field_photo_weeds.py (an independent photo renderer) loaded as a module for tests."""
+"""bench/field_photo_weeds.py (an independent photo renderer) loaded as a module for tests, and
+the distance of an answer from its crown."""
 
 from __future__ import annotations
 
 import functools
 import importlib.util
+import math
 import sys
 from pathlib import Path
 
@@ -17,3 +19,11 @@ def field_photos():
     sys.modules[spec.name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def crown_off(det, truth, S: float) -> float:
+    """How far a Detection's answer lies from the crown `truth` (u, v), in S (the plant's visible
+    diameter); ∞ when there is no answer (a reason, or no pixel)."""
+    if det.reason is not None or det.pixel is None:
+        return float("inf")
+    return math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) / S

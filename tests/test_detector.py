@@ -19,6 +19,8 @@ from capm_field.detector import Detection, Roi, detect_centre, ground_centre, ro
 from sim_bench.perception_bench import make_case, pose_from_axis
 from sim_bench.plants import WEED_KINDS
 
+from field_photos import crown_off, field_photos
+
 CAM = PinholeCamera.from_config(CameraConfig())
 FIX = Path(__file__).parent / "fixtures" / "plants"
 
@@ -1707,8 +1709,6 @@ def test_a_field_photo_is_read_the_same_at_any_size(i: int) -> None:
     independent renderer, no ROI) shrunk to 160 and 320 px, as rendered (1024–2000 px) and enlarged to
     2400 px on its longer side: the crown is found within 0.15 S each time (measured ≤ 0.06 S;
     every size from 64 to 4000 px found 39–40 of seed 0's first 40 photos, median 0.04–0.10 S)."""
-    from field_photos import field_photos
-
     fpw = field_photos()
     img, truth, S, _ = fpw.render(np.random.default_rng([0, i]), fpw.KINDS[i % len(fpw.KINDS)])
     H, W = img.shape[:2]
@@ -1729,21 +1729,19 @@ def test_a_mealy_plant_is_a_plant(seed: int, i: int, with_roi: bool, monkeypatch
     rule), but green above red and blue in the raw image. With its ROI they fill ~20 % of the window,
     without one 3–7 % of the photo. Found within 0.2 S (measured 0.01–0.13 S); without the rule
     (`_mealy`), "no_plant" with the ROI and a small vivid plant elsewhere (0.85–0.90 S off) without."""
-    from field_photos import field_photos
-
     from capm_field import candidates
 
     fpw = field_photos()
     img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), "fathen")
     roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
     det = detect_centre(img, roi)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.2 * S, det
+    assert crown_off(det, truth, S) < 0.2, det
     monkeypatch.setattr(candidates, "MEALY_FRAC", math.inf)
     det = detect_centre(img, roi)
     if with_roi:
         assert det.reason == "no_plant", det
     else:
-        assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) > 0.5 * S, det
+        assert det.reason is None and crown_off(det, truth, S) > 0.5, det
 
 
 def test_a_fan_of_stalks_meeting_outside_the_leaves_hull_is_the_centre(monkeypatch) -> None:
@@ -1752,18 +1750,16 @@ def test_a_fan_of_stalks_meeting_outside_the_leaves_hull_is_the_centre(monkeypat
     lies outside the hull of the leaves found. Stalks of three orientations ≥ 20° apart (the rule's
     least) meet there: found within 0.1 S (measured 0.01 S); 0.46 S off (a trefoil) when a meeting
     outside the hull needs more orientations than there are (`stalks.FAN_STALKS`)."""
-    from field_photos import field_photos
-
     from capm_field import stalks
 
     fpw = field_photos()
     img, truth, S, _ = fpw.render(np.random.default_rng([0, 43]), "clover")
     roi = fpw.roi_near(0, 43, truth, S)
     det = detect_centre(img, roi)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.1 * S, det
+    assert crown_off(det, truth, S) < 0.1, det
     monkeypatch.setattr(stalks, "FAN_STALKS", 99)
     det = detect_centre(img, roi)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) > 0.3 * S, det
+    assert det.reason is None and crown_off(det, truth, S) > 0.3, det
 
 
 @pytest.mark.parametrize("seed, i", [(1, 43), (4, 63)])
@@ -1773,18 +1769,16 @@ def test_pale_petioles_of_a_large_clover_are_found_on_a_finer_grid(seed: int, i:
     into the soil's texture; the second search at ≤ 200 px (`FINE_STALK_PX`, only for compound-leaved
     plants in a window ≥ 200 px) finds where they meet: within 0.1 S (measured 0.02 and 0.04 S), and
     > 0.3 S off (a trefoil's hub) without it."""
-    from field_photos import field_photos
-
     from capm_field import centre_cascade
 
     fpw = field_photos()
     img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), "clover")
     roi = fpw.roi_near(seed, i, truth, S)
     det = detect_centre(img, roi)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.1 * S, det
+    assert crown_off(det, truth, S) < 0.1, det
     monkeypatch.setattr(centre_cascade, "FINE_STALK_PX", 0)
     det = detect_centre(img, roi)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) > 0.3 * S, det
+    assert det.reason is None and crown_off(det, truth, S) > 0.3, det
 
 
 def test_stalk_orientations_count_a_piece_between_two_leaves_once() -> None:

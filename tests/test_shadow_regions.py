@@ -13,7 +13,7 @@ import pytest
 import capm_field.detector as detector
 from capm_field.detector import detect_centre
 from capm_field.shadow_regions import _cell_medians, shadow_regions
-from field_photos import field_photos
+from field_photos import crown_off, field_photos
 
 
 def _soil(rng: np.random.Generator, shape=(240, 320), bgr=(80, 110, 150)) -> np.ndarray:
@@ -135,7 +135,7 @@ def test_plant_hidden_by_a_shadowed_soil_statistics_is_found(seed, i, forced, wi
     assert "person_shadow" in notes["light"]
     roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
     det = detect_centre(img, roi)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < 0.2 * S, det
+    assert crown_off(det, truth, S) < 0.2, det
     monkeypatch.setattr(detector, "_in_shadow_parts", lambda *a, **k: None)
     assert detect_centre(img, roi).reason == "no_plant"
 
@@ -152,10 +152,10 @@ def test_plant_in_a_shadow_outscores_a_small_sunlit_one(seed, i, forced, tol, mo
     img, truth, S, notes = fpw.render(np.random.default_rng([seed, i]), fpw.KINDS[i % len(fpw.KINDS)], forced)
     assert "person_shadow" in notes["light"]
     det = detect_centre(img)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) < tol * S, det
+    assert crown_off(det, truth, S) < tol, det
     monkeypatch.setattr(detector, "SHADOW_GAIN", math.inf)  # no part's plant can replace an answer
     det = detect_centre(img)
-    assert det.reason is None and math.hypot(det.pixel[0] - truth[0], det.pixel[1] - truth[1]) > S, det
+    assert det.reason is None and crown_off(det, truth, S) > 1.0, det
 
 
 def test_bare_soil_in_a_shadow_stays_bare() -> None:
