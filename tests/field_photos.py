@@ -1,5 +1,5 @@
-"""bench/field_photo_weeds.py (an independent photo renderer) loaded as a module for tests, and
-the distance of an answer from its crown."""
+"""The independent renderers of bench/ (bench/field_photo_weeds.py, bench/other_renderer_plants.py) loaded
+as modules for tests, and the distance of an answer from its crown."""
 
 from __future__ import annotations
 
@@ -11,14 +11,20 @@ from pathlib import Path
 
 
 @functools.cache
-def field_photos():
-    """The module (bench/ is not a package; its dataclasses need it in sys.modules while it loads)."""
-    path = Path(__file__).resolve().parents[1] / "bench" / "field_photo_weeds.py"
-    spec = importlib.util.spec_from_file_location("field_photo_weeds", path)
+def bench_module(name: str):
+    """bench/<name>.py as a module (bench/ is not a package; dataclasses need the module in
+    sys.modules while it loads)."""
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def field_photos():
+    """bench/field_photo_weeds.py, the field-photo renderer."""
+    return bench_module("field_photo_weeds")
 
 
 def crown_off(det, truth, S: float) -> float:

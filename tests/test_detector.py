@@ -19,7 +19,7 @@ from capm_field.detector import Detection, Roi, detect_centre, ground_centre, ro
 from sim_bench.perception_bench import make_case, pose_from_axis
 from sim_bench.plants import WEED_KINDS
 
-from field_photos import crown_off, field_photos
+from field_photos import bench_module, crown_off, field_photos
 
 CAM = PinholeCamera.from_config(CameraConfig())
 FIX = Path(__file__).parent / "fixtures" / "plants"
@@ -449,7 +449,7 @@ def test_faint_first_choice_gets_the_second_look(monkeypatch) -> None:
     four leaves. Measured: 0.10 S off (0.64 S, on that one leaf's base, without the second look)."""
     import capm_field.detector as det_mod
 
-    orp = _other_renderer()
+    orp = bench_module("other_renderer_plants")
     img, t, S, _ = orp.render(np.random.default_rng([7, 39]), "lobed")
     r = np.random.default_rng([7, 39, 3])
     cx, cy = t[0] + r.uniform(-0.1, 0.1) * S, t[1] + r.uniform(-0.1, 0.1) * S
@@ -1456,23 +1456,12 @@ def test_tree_median_crosses_a_bare_middle_and_gaps_between_leaf_clusters(monkey
     assert near(False) <= n_off
 
 
-def _other_renderer():
-    """bench/other_renderer_plants.py as a module (bench/ is not a package)."""
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "bench" / "other_renderer_plants.py"
-    spec = importlib.util.spec_from_file_location("other_renderer_plants", path)
-    orp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(orp)
-    return orp
-
-
 def test_five_kinds_from_another_renderer_with_a_roi() -> None:
     """25 weeds (grass, clover, seedling, rosette, lobed) from bench/other_renderer_plants.py,
     a renderer written without sim_bench or the detector, with a ROI around each (seed 7; these
     cases were not used for tuning: close-up crops of its cases 39 and 47 led to FAINT_SIGMA and
     the cyan rule). Measured (session 19): 23 found, 20 within 0.2 of the plant size."""
-    orp = _other_renderer()
+    orp = bench_module("other_renderer_plants")
     found = within = 0
     for i in range(25):
         img, truth, S, _ = orp.render(np.random.default_rng([7, i]), orp.KINDS[i % 5])
@@ -1493,7 +1482,7 @@ def test_bluish_green_plants_green_in_the_raw_image_are_found() -> None:
     but green above red and blue in the camera's own colours and saturated there. Centre within
     0.15 S (measured 0.004 and 0.11 S: since the glaucous rule takes G* p90 ≥ 0.04, a pale part of
     the seedling joins it and the leaf-axis estimator answers; 0.03 S before)."""
-    orp = _other_renderer()
+    orp = bench_module("other_renderer_plants")
     for seed, i in ((0, 60), (2, 92)):
         img, truth, S, _ = orp.render(np.random.default_rng([seed, i]), orp.KINDS[i % 5])
         det = detect_centre(img)
@@ -1811,7 +1800,10 @@ def _stems_with_a_bunch(rng) -> tuple[np.ndarray, np.ndarray]:
     m = np.zeros((200, 200), np.uint8)
     c = np.array([100.0, 100.0]) + rng.uniform(-3, 3, 2)
     a0 = rng.uniform(0, 2 * math.pi)
-    pt = lambda p: (int(p[0]), int(p[1]))  # noqa: E731
+
+    def pt(p: np.ndarray) -> tuple[int, int]:
+        return int(p[0]), int(p[1])
+
     for k in range(3):
         a = a0 + k * 2 * math.pi / 3 + rng.uniform(-0.2, 0.2)
         e = c + rng.uniform(55, 65) * np.array([math.cos(a), math.sin(a)])
