@@ -35,9 +35,9 @@ GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges l
 BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
 HULL_BAND = True  # the band is cut to the plant's convex hull (tree median only): no shortest path between the
 # plant's pixels gains by a detour outside it at GAP_COST, its centre is not there, and that outer ring was ~1/3 of the
-# graph's nodes. Session 29: bench seeds
-# 0–7 3 answers better, 2 worse by > 2 mm (grass, rosettes; wrong 42 → 42), field-photo tree-median answers 4 better
-# (seedlings, a thistle), none worse; per frame −0.27 ms median, −0.42 ms mean (paired, 300 cached bench frames)
+# graph's nodes. Session 29: bench seeds 0–7 3 answers better, 2 worse by > 2 mm (grass, rosettes; wrong 42 → 42),
+# field-photo tree-median answers 4 better (seedlings, a thistle), none worse; per frame −0.27 ms median, −0.42 ms
+# mean (paired, 300 cached bench frames)
 FILL_HOLES = True  # soil enclosed by the plant costs as much as the plant (`crossing_cost`). Session 23:
 # field-photo bench seed 0 p90 0.278 → 0.272 S (a plantain with a bare middle 0.28 → 0.11 S), photo-like
 # seed 4 p90 0.354 → 0.287 S; bench seeds 0–7: 2 answers moved (2.7 → 1.9, 0.4 → 3.7 mm)
