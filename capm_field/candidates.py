@@ -161,6 +161,19 @@ def _cyan_green(f: dict) -> bool:
 CYAN_GB, CYAN_GR, CYAN_SAT, CYAN_SIGMA = -0.06, 0.15, 0.45, 8.0
 
 
+def _large_teal(f: dict) -> bool:
+    """Second look: a large plant (≥ MEALY_FRAC of the window) of blue-green leaves (teal thistles,
+    glaucous rosettes): −a* segments it whole, but with B ≈ G its gb is near 0 and its green above
+    red (gr) short of the teal and cyan rules, which small candidates need. Far greener than red
+    (gr ≥ LTEAL_GR), saturated (≥ LTEAL_SAT), greener than magenta before the white balance
+    (gm_raw ≥ MEALY_GM) and ≥ LTEAL_SIGMA soil σ out."""
+    return f["area_frac"] >= MEALY_FRAC and f["gb"] >= CYAN_GB and f["gr"] >= LTEAL_GR and f["sat"] >= LTEAL_SAT \
+        and f["gm_raw"] >= MEALY_GM and f["gsig"] >= LTEAL_SIGMA
+
+
+LTEAL_GR, LTEAL_SAT, LTEAL_SIGMA = 0.085, 0.25, 8.0
+
+
 def _raw_blue_green(f: dict) -> bool:
     """Second look: bluish-green leaves of middling colour (gb 0.04–0.08, saturation 0.22–0.30,
     below the vivid and teal rules) that are green above both red and blue in the camera's own
@@ -203,7 +216,7 @@ def plant_like(f: dict, vivid: bool = False) -> bool:
         return True
     margin = (f["gb"] - 0.07) / 0.07 + (f["sat"] - 0.2) / 0.2  # not at the edge of both at once
     if vivid and (f["sat"] < VIVID_SAT or f["gb"] < VIVID_GB) and not _large_and_coloured(f) and not _stands_out(f):
-        if _raw_blue_green(f) or _cyan_green(f):
+        if _raw_blue_green(f) or _cyan_green(f) or _large_teal(f):
             return True
         # blue-green leaves (G ≈ B: G* leaves them at the soil's level) far greener than red
         return f["gb"] >= TEAL_GB and f["sat"] >= TEAL_SAT and f["gsig"] >= 5 and f["gr"] >= TEAL_GR

@@ -1739,6 +1739,29 @@ def test_a_mealy_plant_is_a_plant(seed: int, i: int, with_roi: bool, monkeypatch
         assert det.reason is None and crown_off(det, truth, S) > 0.5, det
 
 
+@pytest.mark.parametrize("seed, i, with_roi", [(4, 126, True), (5, 26, True), (0, 156, True), (0, 156, False)])
+def test_a_large_teal_plant_is_a_plant(seed: int, i: int, with_roi: bool, monkeypatch) -> None:
+    """Thistles of bench/field_photo_weeds.py (an independent renderer) whose leaves are blue-green:
+    G* leaves them at the soil's level, −a* segments them whole, but blue at green's level puts their
+    gb at −0.01–0.03 and their green above red at gr 0.09–0.14, short of the teal and cyan rules
+    (which small candidates need). With the ROI they fill ~15–20 % of the window. Found within 0.2 S
+    (measured 0.01–0.07 S); without the rule (`_large_teal`), "no_plant" with the ROI, and without
+    one a small plant elsewhere (0.85 S off)."""
+    from capm_field import candidates
+
+    fpw = field_photos()
+    img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), "thistle")
+    roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
+    det = detect_centre(img, roi)
+    assert crown_off(det, truth, S) < 0.2, det
+    monkeypatch.setattr(candidates, "LTEAL_GR", math.inf)
+    det = detect_centre(img, roi)
+    if with_roi:
+        assert det.reason == "no_plant", det
+    else:
+        assert det.reason is None and crown_off(det, truth, S) > 0.5, det
+
+
 def test_a_fan_of_stalks_meeting_outside_the_leaves_hull_is_the_centre(monkeypatch) -> None:
     """bench/field_photo_weeds.py seed 0 case 43 with its ROI: a clover whose reddish petioles fan out
     from the crown to trefoils on one side; the palest trefoil stays under the threshold, so the crown
