@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+import capm_field.candidates as candidates
 import capm_field.detector as detector
 from capm_field.detector import detect_centre
 from capm_field.shadow_regions import _cell_medians, shadow_regions
@@ -137,6 +138,9 @@ def test_plant_hidden_by_a_shadowed_soil_statistics_is_found(seed, i, forced, wi
     det = detect_centre(img, roi)
     assert crown_off(det, truth, S) < 0.2, det
     monkeypatch.setattr(detector, "_in_shadow_parts", lambda *a, **k: None)
+    # (since session 29 the whole window's second look finds the forced-shadow clover (0, 33) with
+    # its ROI by the large-teal rule too, 0.02 S off: that rule off, only the part look finds it)
+    monkeypatch.setattr(candidates, "LTEAL_GR", math.inf)
     assert detect_centre(img, roi).reason == "no_plant"
 
 
