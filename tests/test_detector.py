@@ -1717,6 +1717,25 @@ def test_a_field_photo_is_read_the_same_at_any_size(i: int) -> None:
         assert math.hypot(u - truth[0], v - truth[1]) < 0.15 * S, (side, det)
 
 
+def _found_only_by_the_rule(kind: str, seed: int, i: int, with_roi: bool, rule_constant: str, monkeypatch) -> None:
+    """A field-photo plant (bench/field_photo_weeds.py) is found within 0.2 S; with the colour rule's
+    `rule_constant` (in `capm_field.candidates`) set to ∞, "no_plant" with its ROI and an answer > 0.5 S
+    off without one."""
+    from capm_field import candidates
+
+    fpw = field_photos()
+    img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), kind)
+    roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
+    det = detect_centre(img, roi)
+    assert crown_off(det, truth, S) < 0.2, det
+    monkeypatch.setattr(candidates, rule_constant, math.inf)
+    det = detect_centre(img, roi)
+    if with_roi:
+        assert det.reason == "no_plant", det
+    else:
+        assert det.reason is None and crown_off(det, truth, S) > 0.5, det
+
+
 @pytest.mark.parametrize("seed, i, with_roi", [(0, 108, True), (4, 28, True), (0, 108, False), (5, 8, False)])
 def test_a_mealy_plant_is_a_plant(seed: int, i: int, with_roi: bool, monkeypatch) -> None:
     """Fat-hens of bench/field_photo_weeds.py (an independent renderer): the mealy bloom leaves them
@@ -1724,19 +1743,7 @@ def test_a_mealy_plant_is_a_plant(seed: int, i: int, with_roi: bool, monkeypatch
     rule), but green above red and blue in the raw image. With its ROI they fill ~20 % of the window,
     without one 3–7 % of the photo. Found within 0.2 S (measured 0.01–0.13 S); without the rule
     (`_mealy`), "no_plant" with the ROI and a small vivid plant elsewhere (0.85–0.90 S off) without."""
-    from capm_field import candidates
-
-    fpw = field_photos()
-    img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), "fathen")
-    roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
-    det = detect_centre(img, roi)
-    assert crown_off(det, truth, S) < 0.2, det
-    monkeypatch.setattr(candidates, "MEALY_FRAC", math.inf)
-    det = detect_centre(img, roi)
-    if with_roi:
-        assert det.reason == "no_plant", det
-    else:
-        assert det.reason is None and crown_off(det, truth, S) > 0.5, det
+    _found_only_by_the_rule("fathen", seed, i, with_roi, "MEALY_FRAC", monkeypatch)
 
 
 @pytest.mark.parametrize("seed, i, with_roi", [(4, 126, True), (5, 26, True), (0, 156, True), (0, 156, False)])
@@ -1747,19 +1754,7 @@ def test_a_large_teal_plant_is_a_plant(seed: int, i: int, with_roi: bool, monkey
     (which small candidates need). With the ROI they fill ~15–20 % of the window. Found within 0.2 S
     (measured 0.01–0.07 S); without the rule (`_large_teal`), "no_plant" with the ROI, and without
     one a small plant elsewhere (0.85 S off)."""
-    from capm_field import candidates
-
-    fpw = field_photos()
-    img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), "thistle")
-    roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
-    det = detect_centre(img, roi)
-    assert crown_off(det, truth, S) < 0.2, det
-    monkeypatch.setattr(candidates, "LTEAL_GR", math.inf)
-    det = detect_centre(img, roi)
-    if with_roi:
-        assert det.reason == "no_plant", det
-    else:
-        assert det.reason is None and crown_off(det, truth, S) > 0.5, det
+    _found_only_by_the_rule("thistle", seed, i, with_roi, "LTEAL_GR", monkeypatch)
 
 
 def test_a_fan_of_stalks_meeting_outside_the_leaves_hull_is_the_centre(monkeypatch) -> None:
