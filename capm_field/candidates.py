@@ -171,7 +171,9 @@ def _large_teal(f: dict) -> bool:
         and f["gm_raw"] >= MEALY_GM and f["gsig"] >= LTEAL_SIGMA
 
 
-LTEAL_GR, LTEAL_SAT, LTEAL_SIGMA = 0.085, 0.25, 8.0
+LTEAL_GR, LTEAL_SAT, LTEAL_SIGMA = 0.085, 0.25, 8.0  # (session 29: field-photo teal thistles gr 0.09–0.14, sat
+# 0.26–0.42; second-look stone components of bench/stones_on_soils.py gr ≤ 0.09, sat ≤ 0.30 and small: stones 31 of
+# 384 as before; field-photo bare sets, 200 fresh bare scenes, bench seeds 0–7 unchanged)
 
 
 def _raw_blue_green(f: dict) -> bool:

@@ -33,9 +33,9 @@ from .order_stats import percentile
 
 GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
 BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
-HULL_BAND = True  # the band is cut to the plant's convex hull (tree median only): no shortest path between the
-# plant's pixels gains by a detour outside it at GAP_COST, its centre is not there, and that outer ring was ~1/3 of the
-# graph's nodes. Session 29: bench seeds 0–7 3 answers better, 2 worse by > 2 mm (grass, rosettes; wrong 42 → 42),
+HULL_BAND = True  # the band is cut to the plant's convex hull (tree median only): shortest paths between the
+# plant's pixels seldom detour outside it at GAP_COST, its centre is not there, and that outer ring was ~1/3 of the
+# graph's nodes on bench plants. Session 29: bench seeds 0–7 3 answers better, 2 worse by > 2 mm (grass, rosettes; wrong 42 → 42),
 # field-photo tree-median answers 4 better (seedlings, a thistle), none worse; per frame −0.27 ms median, −0.42 ms
 # mean (paired, 300 cached bench frames)
 FILL_HOLES = True  # soil enclosed by the plant costs as much as the plant (`crossing_cost`). Session 23:
