@@ -34,10 +34,10 @@ from .order_stats import percentile
 GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
 BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
 HULL_BAND = True  # the band is cut to the plant's convex hull (tree median only): shortest paths between the
-# plant's pixels seldom detour outside it at GAP_COST, its centre is not there, and that outer ring was ~1/3 of the
-# graph's nodes on bench plants. Session 29: bench seeds 0–7 3 answers better, 2 worse by > 2 mm (grass, rosettes; wrong 42 → 42),
-# field-photo tree-median answers 4 better (seedlings, a thistle), none worse; per frame −0.27 ms median, −0.42 ms
-# mean (paired, 300 cached bench frames)
+# plant's pixels seldom detour outside it at GAP_COST, and its centre is not there. Session 29: graph nodes 3 847 →
+# 2 991 on average over bench seed 0's 300 frames (fan_apex's graphs, which keep the band, included); bench seeds 0–7
+# 3 answers better, 2 worse by > 2 mm (grass, rosettes; wrong 42 → 42), field-photo tree-median answers 4 better
+# (seedlings, a thistle), none worse; per frame −0.27 ms median, −0.42 ms mean (paired, 300 cached bench frames)
 FILL_HOLES = True  # soil enclosed by the plant costs as much as the plant (`crossing_cost`). Session 23:
 # field-photo bench seed 0 p90 0.278 → 0.272 S (a plantain with a bare middle 0.28 → 0.11 S), photo-like
 # seed 4 p90 0.354 → 0.287 S; bench seeds 0–7: 2 answers moved (2.7 → 1.9, 0.4 → 3.7 mm)
