@@ -23,7 +23,8 @@ import numpy as np
 
 from capm_field import leaf_axes
 from capm_field.detector import detect_centre
-from capm_field.plant_centre import geometric_median, tree_median
+from capm_field.plant_centre import geometric_median
+from capm_field.tree_median import tree_median
 
 SHAPES = ("lens", "ellipse", "obovate", "petiolate")
 

@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-from . import compound_leaf, leaf_axes, plant_centre, stalks
+from . import axis_votes, compound_leaf, fan_apex, leaf_axes, plant_centre, stalks, tree_median
 from .components import components
 from .roi import Roi, roi_mask
 from .vegetation import pooled_index, resize_down, vegetation_index
@@ -34,7 +34,7 @@ FINE_STALK_PX = 200  # (0: off) plant windows of ≥ this many image px whose st
 # 300 frames where it runs. From 100 px windows: bench seed 3 a clover 8.3 → 27.9 mm; for every plant, not
 # only compound-leaved ones: a field-photo fat-hen's leaf veins and a stone's edge taken for stalks (0.02 →
 # 0.57 S)
-STALK_PEAKS = 2  # leaf-axis vote peaks (`plant_centre.vote_peaks`) from which stalks are looked for
+STALK_PEAKS = 2  # leaf-axis vote peaks (`axis_votes.vote_peaks`) from which stalks are looked for
 
 
 def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
@@ -138,10 +138,10 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
     # where no middle-of-the-parts estimate lands (not for broad leaves, whose outlines vote
     # across the plant: a half-disc of leaves had its "apex" on its rim, 0.43 L off)
     votes, n_peaks = None, 0  # leaf-axis votes: made when first needed (~1–2 ms)
-    if roundness < plant_centre.THIN_ROUND:  # blades: their edges run along them, towards the base
-        votes = plant_centre.axis_votes(vi, plant, size)
-        n_peaks = plant_centre.vote_peaks(votes, size)
-        uv = plant_centre.fan_apex(plant, votes, size, n_peaks)
+    if roundness < axis_votes.THIN_ROUND:  # blades: their edges run along them, towards the base
+        votes = axis_votes.axis_votes(vi, plant, size)
+        n_peaks = axis_votes.vote_peaks(votes, size)
+        uv = fan_apex.fan_apex(plant, votes, size, n_peaks)
         if uv is not None:
             method = "fan_apex"
     # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin
@@ -160,8 +160,8 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
                 method = name
                 break
     if uv is None and votes is None:
-        votes = plant_centre.axis_votes(vi, plant, size)
-        n_peaks = plant_centre.vote_peaks(votes, size)
+        votes = axis_votes.axis_votes(vi, plant, size)
+        n_peaks = axis_votes.vote_peaks(votes, size)
     compound = False
     hubs = None
     lone = None  # the centre end of a lone stalk between two leaf clusters (after compound_centre)
@@ -204,7 +204,7 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
             uv = uv if plant_centre.within_broad_hull(uv, parts) else None
         if uv is None:
             method = None
-    scattered = bool(plant_centre.SCATTER_PEAKS) and n_peaks >= plant_centre.SCATTER_PEAKS
+    scattered = bool(axis_votes.SCATTER_PEAKS) and n_peaks >= axis_votes.SCATTER_PEAKS
     gmed = None  # the plant's geometric median: made when first needed
     if uv is None and not compound and (scattered or n_peaks >= leaf_axes.MIN_PEAKS and roundness >= leaf_axes.MIN_ROUND) \
             and compound_leaf.strongest_hub(hubs) < leaf_axes.HUB_GUARD:
@@ -232,9 +232,9 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # leaf-axis votes for the tree median at the scale of the leaves' half-width: a smaller
         # window leaves the two edges of a broad leaf voting along two parallel lines that
         # miss its axis (and the centre) by the half-width
-        scale = float(np.clip(plant_centre.AXIS_K * roundness, 0.015, plant_centre.AXIS_MAX))
-        fine = scale <= 0.015 or roundness >= plant_centre.THIN_ROUND  # votes unused for round parts (weight 0)
-        uv, ntips, sharp = plant_centre.tree_median(plant, vi, None, votes if fine else plant_centre.axis_votes(vi, plant, size, scale))
+        scale = float(np.clip(tree_median.AXIS_K * roundness, 0.015, tree_median.AXIS_MAX))
+        fine = scale <= 0.015 or roundness >= axis_votes.THIN_ROUND  # votes unused for round parts (weight 0)
+        uv, ntips, sharp = tree_median.tree_median(plant, vi, None, votes if fine else axis_votes.axis_votes(vi, plant, size, scale))
         if uv is None:
             return None, 0, 0.0
     if debug is not None:

@@ -4,19 +4,21 @@ Every estimator works on one plant's mask (bool, ~PLANT_PX across, see `capm_fie
 and, where it needs colour, the vegetation index on the same grid; coordinates are (x, y) grid
 pixels. They assume nothing about the camera. `capm_field.centre_cascade.centre_fullres` chooses,
 the first that answers:
-  - thin blades leaning one way (a grass fan): `fan_apex`, where the blade axes converge;
+  - thin blades leaning one way (a grass fan): `capm_field.fan_apex`, where the blade axes converge;
   - plants with rounded parts (clover, seedlings, broad rosettes): `petiole_centre` (straight
     stalks crossing), `line_hub` (thin parts converging), each only inside the broad parts'
-    hull (`within_broad_hull`);
-  - leaf axes converging at ≥ 2 points (`vote_peaks`): first stalks the index misses but
-    the grey image shows, `capm_field.stalks` (where they meet); then
+    hull (`within_broad_hull`) — this module;
+  - leaf axes converging at ≥ 2 points (`capm_field.axis_votes`): first stalks the index misses
+    but the grey image shows, `capm_field.stalks` (where they meet); then
   - compound leaves whose stalks do not show (clover trefoils): `capm_field.compound_leaf`,
     where rays back from the three-lobed hubs agree; then, for rounded parts,
-    `component_median` (separate parts round an empty middle, same hull rule);
-  - leaf axes converging at several separate points (`vote_peaks` of `axis_votes`): where the
-    leaves' axes traced back from their tips meet (`capm_field.leaf_axes`, rosettes), else the
-    `geometric_median` of the plant;
-  - otherwise the `tree_median`: Σ geodesic distance to the leaf tips minus leaf-axis votes.
+    `component_median` or `pair_gap` (separate parts round an empty middle, same hull rule);
+  - leaf axes converging at several separate points: where the leaves' axes traced back from
+    their tips meet (`capm_field.leaf_axes`, rosettes), else the `geometric_median` of the plant;
+  - otherwise `capm_field.tree_median`: Σ geodesic distance (`capm_field.geodesic`) to the leaf
+    tips minus leaf-axis votes.
+This module holds the estimators that work on the plant's parts (its broad parts, thin parts and
+straight stalks) and the geometric median.
 """
 
 from __future__ import annotations
@@ -25,28 +27,9 @@ import math
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import dijkstra
 
 from .components import components
 from .order_stats import percentile
-
-GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
-BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
-HULL_BAND = True  # the band is cut to the plant's convex hull (tree median only): shortest paths between the
-# plant's pixels seldom detour outside it at GAP_COST, and its centre is not there. Session 29: graph nodes 3 847 →
-# 2 991 on average over bench seed 0's 300 frames (fan_apex's graphs, which keep the band, included); bench seeds 0–7
-# 3 answers better, 2 worse by > 2 mm (grass, rosettes; wrong 42 → 42), field-photo tree-median answers 4 better
-# (seedlings, a thistle), none worse; per frame −0.27 ms median, −0.42 ms mean (paired, 300 cached bench frames)
-FILL_HOLES = True  # soil enclosed by the plant costs as much as the plant (`crossing_cost`). Session 23:
-# field-photo bench seed 0 p90 0.278 → 0.272 S (a plantain with a bare middle 0.28 → 0.11 S), photo-like
-# seed 4 p90 0.354 → 0.287 S; bench seeds 0–7: 2 answers moved (2.7 → 1.9, 0.4 → 3.7 mm)
-BRIDGE_ALL = True  # parts further apart than the band are joined across the plant's hull (tree median only).
-# Session 23: field-photo seed 0 p90 0.272 → 0.235 S (purslane: leaf clusters on red stalks); bench seeds 0–7:
-# 25 answers moved, 14 better (20.7 → 7.6, 6.5 → 1.8 mm), 11 worse (15.8 → 24.9, 3.3 → 6.9 mm), wrong unchanged
-
-
-
 
 PET_MINLEN = 0.07  # of the plant size
 PET_K = 1.0  # ridge threshold, × the 99th percentile of the ridge response on the soil
@@ -202,8 +185,6 @@ def _passes(along: float, h: float, tol: float, reach: float, directed: bool) ->
 
 
 HUB_MIN_ROUND = 0.022
-
-
 HULL_TOL = 0.05  # × plant size: how far outside the broad parts' hull a stalk meeting may lie
 
 
@@ -361,46 +342,6 @@ LH_MAX_OFF = 0.225  # × size: farthest a `line_hub` peak may lie from the plant
 # 0.39 → 0.02 S, a plantain 0.35 → 0.06 S; no answer worse
 
 
-SCATTER_PEAKS = 4  # vote peaks (≥ 0.7 of the highest, 0.12·size apart) that mark a plant without one apex
-# measured on the bench (seed 0, tree-median cases): clover ≥ 2 always, mostly ≥ 3; rosettes 1 in
-# 46 of 64; geometric median at ≥ 4 peaks: wrong 22 → 8, p90 29.7 → 19.7 mm, median 5.7 → 5.2 mm
-
-
-def vote_peaks(votes: np.ndarray, size: float) -> int:
-    """Number of separate strong peaks of a leaf-axis vote map (see `axis_votes`)."""
-    r = max(2, int(0.12 * size))
-    mx = cv2.dilate(votes, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    return int(np.count_nonzero((votes >= mx) & (votes >= 0.7)))
-
-
-def crossing_cost(plant: np.ndarray, size: float, bridge: bool = True) -> np.ndarray:
-    """Geodesic cost per pixel for paths through a plant: 1 on the mask and in the soil it
-    encloses (a rosette's middle often shows soil or pale stalks between the leaf bases: paths
-    round such a hole pulled the median onto a leaf), GAP_COST in a band BAND × size round it
-    (gaps across lost petioles), ∞ beyond. When the band leaves the plant in several pieces
-    (leaf clusters on stalks the index misses), the band takes in the plant's convex hull, so
-    that every tip is reachable from every part (else a median sees only one piece); not with
-    `bridge` False (`fan_apex`, whose straightness test measures the paths along the blades).
-    With `bridge`, the band outside the convex hull is dropped (HULL_BAND)."""
-    m8 = plant.astype(np.uint8)
-    band = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)), iterations=max(1, int(BAND * size)))
-    if bridge and (BRIDGE_ALL or HULL_BAND):
-        ys, xs = np.nonzero(plant)
-        hull = np.zeros_like(m8)
-        cv2.fillConvexPoly(hull, cv2.convexHull(np.c_[xs, ys].astype(np.int32)), 1)
-        if BRIDGE_ALL and cv2.connectedComponents(band, connectivity=8)[0] > 2:
-            band |= hull
-        if HULL_BAND:
-            band &= hull
-    on = plant.copy()
-    if FILL_HOLES:
-        n, lab = cv2.connectedComponents(1 - m8, connectivity=4)
-        if n > 2:  # soil pieces not reaching the window's border
-            edge = np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])
-            on |= ~plant & ~np.isin(lab, edge)
-    return np.where(on, 1.0, np.where(band > 0, GAP_COST, np.inf))
-
-
 def geometric_median(P: np.ndarray, iters: int = 50) -> np.ndarray:
     """Point minimising Σ‖p − x‖ over the rows of P (Weiszfeld)."""
     x = P.mean(axis=0)
@@ -411,335 +352,3 @@ def geometric_median(P: np.ndarray, iters: int = 50) -> np.ndarray:
             return x_new
         x = x_new
     return x
-
-
-def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | None = None,
-                votes: np.ndarray | None = None) -> tuple[np.ndarray | None, int, float]:
-    """Point minimising Σ geodesic distance to the leaf tips of a plant mask, in mask pixels.
-
-    With the vegetation index `vi`, the cost is combined with leaf-axis convergence votes
-    (`axis_votes`), which find the apex of fan-shaped plants (grass) where tips alone cannot;
-    they count in proportion to the plant's thinness and to how much they pile up (VOTE_CONC).
-    With a single tip the centre is the stem between it and the plant's far end (see below).
-    Returns ((x, y), number of tips, sharpness 0..1 of the minimum).
-    """
-    h, w = plant.shape
-    area = int(plant.sum())
-    if area < 3:
-        return None, 0, 0.0
-    ys, xs = np.nonzero(plant)
-    size = math.hypot(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-    # nodes: the plant plus a band around it that gaps may be crossed through, at a cost
-    G, node = _grid_graph(crossing_cost(plant, size))
-    # provisional centre: deepest point of the mask (overlapping leaves are thickest at the centre)
-    dt = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 5)
-    c0 = np.unravel_index(int(np.argmax(dt)), dt.shape)
-    tips: np.ndarray = np.zeros(0, int)
-    centre_node = node[c0]
-    prev: set = set()
-    rows: dict[int, np.ndarray] = {}  # geodesic distances from each tip: the second pass finds mostly the same tips
-    for _ in range(TM_ITER):
-        g0 = dijkstra(G, directed=True, indices=[centre_node])[0]
-        tips = _tips(g0, node, plant, size)
-        if len(tips) == 0 or set(tips.tolist()) == prev:
-            break  # same tips from the new centre: F, and so the minimum, would not change
-        prev = set(tips.tolist())
-        new = [t for t in tips.tolist() if t not in rows]
-        if new:  # each source's row is computed on its own: the same as in a call with all tips
-            rows.update(zip(new, dijkstra(G, directed=True, indices=new, limit=np.inf)))
-        F = _tip_cost(np.array([rows[t] for t in tips.tolist()]), tips, size)
-        centre_node = int(np.argmin(F))
-    if len(tips) == 0:
-        yx = np.array(c0, float)
-        return np.array([yx[1], yx[0]]), 0, 0.0
-    inv = np.argwhere(node >= 0) if len(tips) == 1 or out is not None else None  # node index → (y, x)
-    if len(tips) == 1:
-        # one tip (two opposite leaves or cotyledons, seen from inside one of them): Σ distance
-        # to it is least at the tip itself. The plant's far end from it is the other tip; the
-        # centre is the narrowest point (the stem between the two leaves) of the middle 70 % of
-        # the geodesic path between them
-        t0 = int(tips[0])
-        on_plant = node[plant]
-        d0 = rows[t0][on_plant]
-        far = int(on_plant[np.argmax(np.where(np.isfinite(d0), d0, -1.0))])
-        if far not in rows:
-            rows[far] = dijkstra(G, directed=True, indices=[far], limit=np.inf)[0]
-        tips = np.array([t0, far])
-        D0, D1 = rows[t0], rows[far]
-        L = float(D0[far])
-        width = dt[inv[:, 0], inv[:, 1]]
-        path = (D0 + D1 <= L + 1.5) & (D0 >= 0.15 * L) & (D0 <= 0.85 * L)
-        if np.isfinite(L) and L > 0 and path.any():
-            F = np.full(D0.shape, np.inf)  # on the path only (elsewhere D0 − D1 may be ∞ − ∞)
-            F[path] = L + width[path] + 0.01 * np.abs(D0[path] - D1[path])
-        else:
-            F = _tip_cost(np.array([D0, D1]))
-    if out is not None:
-        out["tips"] = inv[tips][:, ::-1].astype(float)
-    flat = np.full(h * w, np.inf)
-    valid = node.ravel() >= 0
-    flat[valid] = F[node.ravel()[valid]]
-    Fm = flat.reshape(h, w)
-    if vi is not None and VOTE_WEIGHT > 0:
-        A = votes if votes is not None else axis_votes(vi, plant, size)
-        fmin = float(np.min(Fm))
-        # trust the votes in proportion to how elongated the parts are: thin blades and narrow
-        # leaves point at the centre, round leaflets and cotyledons do not
-        thin = float(dt[plant].mean()) / size
-        wv = VOTE_WEIGHT * float(np.clip((THIN_ROUND - thin) / (THIN_ROUND - THIN_BLADE), 0.0, 1.0))
-        if VOTE_CONC is not None and wv > 0:
-            # and in proportion to how much they pile up at one point: the veins and lobes of
-            # broad leaves vote all over the plant, and the map's maximum is then anywhere
-            iy, ix = np.unravel_index(int(np.argmax(A)), A.shape)
-            r = 0.08 * size
-            y0, y1, x0, x1 = max(int(iy - r), 0), int(iy + r) + 1, max(int(ix - r), 0), int(ix + r) + 1
-            gy, gx = np.mgrid[y0:min(y1, h), x0:min(x1, w)]
-            near = float(A[y0:y1, x0:x1][(gx - ix) ** 2 + (gy - iy) ** 2 <= r * r].sum())
-            conc = near / max(float(A.sum()), 1e-9)
-            wv *= float(np.clip((conc - VOTE_CONC[0]) / (VOTE_CONC[1] - VOTE_CONC[0]), 0.0, 1.0))
-        Fm = (Fm - fmin) / (fmin + 1e-9) - wv * A
-    iy, ix = np.unravel_index(int(np.argmin(Fm)), Fm.shape)
-    # sub-pixel: weighted mean of the near-minimum region
-    fmin = Fm[iy, ix]
-    tol = 0.02 * fmin + 1e-6
-    y0_, y1_ = max(iy - 3, 0), min(iy + 4, h)
-    x0_, x1_ = max(ix - 3, 0), min(ix + 4, w)
-    win = Fm[y0_:y1_, x0_:x1_]
-    wgt = np.clip(1 - (win - fmin) / tol, 0, None)
-    wgt[~np.isfinite(wgt)] = 0
-    gy, gx = np.mgrid[y0_:y1_, x0_:x1_]
-    cx, cy = float((wgt * gx).sum() / wgt.sum()), float((wgt * gy).sum() / wgt.sum())
-    # sharpness: how much F rises 10 % of the plant size away from the minimum
-    ring = (np.hypot(gx - ix, gy - iy) >= 2)
-    rise = float(np.nanmin(np.where(ring & np.isfinite(win), win, np.nan))) - fmin if ring.any() else 0.0
-    sharp = float(np.clip(rise / (0.02 * fmin + 1e-6), 0, 1)) if np.isfinite(rise) else 0.0
-    return np.array([cx, cy]), len(tips), sharp
-
-
-def _tip_cost(D: np.ndarray, tips: np.ndarray | None = None, size: float = 0.0) -> np.ndarray:
-    """Tree-median cost per node from the geodesic distances D (tips × nodes): Σ over the tips
-    plus a tenth of the farthest (a tie-break towards the middle); ∞ where a tip is unreachable.
-
-    With the tips' node indices `tips` (≥ 3) and the plant's size, each tip counts in inverse
-    proportion to how many tips lie within ~TIP_SPREAD × size of it along the plant: a bunch of
-    leaves at the end of one stem (purslane, chickweed, a seedling's true leaves) counts about
-    as one tip, and does not pull the median off the crown towards itself."""
-    if TIP_SPREAD > 0 and tips is not None and len(tips) > 2 and size > 0:
-        near = np.exp(-(D[:, tips] / (TIP_SPREAD * size)) ** 2)  # (∞ between unconnected tips: 0)
-        wt = 1.0 / near.sum(axis=1)
-        F = (wt * (len(tips) / wt.sum())) @ D + 0.1 * D.max(axis=0)
-    else:
-        F = D.sum(axis=0) + 0.1 * D.max(axis=0)
-    F[~np.isfinite(F)] = np.inf
-    return F
-
-
-VOTE_WEIGHT = 2.0
-VOTE_CONC = (0.06, 0.08)  # share of the votes within 0.08 × size of their peak: no weight at the first, full
-# from the second (None: always full). Votes that meet measured 0.08–0.12 (rosettes, grass fans), the veins
-# and trefoils of clovers and broad leaves 0.05–0.08. Session 23: bench seeds 0–7 wrong 44 → 42, p90 lower
-# on seeds 1, 3, 4, 7 (31.0 → 4.3, 65.9 → 27.1, 24.3 → 5.9 mm; seedlings ≤ 5 mm worse); photo-like seeds
-# 3–6 within 0.1 S +1 or +2 answers each (one more wrong on seed 6); field-photo seed 0 with a ROI p90
-# 0.223 → 0.204 S, seed 1 0.229 → 0.240 S; other renderer slightly worse (medians +0.001–0.005 S, seed 1
-# p90 0.154 → 0.178 S). (0.05, 0.07) moved only 3 bench answers
-AXIS_K, AXIS_MAX = 1.0, 0.05  # tree-median vote scale = AXIS_K × mean half-width (≤ AXIS_MAX), × size
-TIP_SPREAD = 0.5  # × plant size: ρ of the tree-median tips' weight kernel exp(−(d/ρ)²) over their geodesic
-# distances d (tips that near share one weight; 0: every tip counts 1). Field-photo seeds 0–5 + shadow set, the
-# 767 tree-median answers: > 0.2 S off 82 → 62 (purslane 16 → 8, chickweed 14 → 9, plantain 9 → 6), 62 better
-# and 29 worse by > 0.02 S; bench seeds 0–7: wrong 42 → 42, 43 answers better and 25 worse by > 2 mm (seedlings
-# 12–31 → 0.5–6 mm; a grass 4.3 → 30.9 mm), p90 lower on 6 of 8 seeds (seed 6 16.31 → 15.89 mm); drawn hollow
-# rosettes (tests) 10 → 9 of 12 within 0.06 × size. 0.2 gained less (82 → 74), 0.35 as much on the photos
-# (82 → 64) but 44 wrong on the bench. More weight on the farthest tip instead (2 × max: a minimax centre)
-# gained as much on the photos but made 32 bench rosettes worse (their uneven leaves). Applied only where the
-# leaf-axis votes get no weight (which spares the grass above), the photos' gain fell to 82 → 70
-TM_ITER = 2  # tips from the provisional centre, then again from the first estimate
-THIN_BLADE, THIN_ROUND = 0.02, 0.06  # mean half-width / plant size
-
-
-def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float, scale: float = 0.015) -> np.ndarray:
-    """Leaf-axis convergence map in [0, 1]: every leaf/blade edge votes along its own direction.
-
-    Blade edges, midribs and elongated leaf margins run towards where the leaves emerge, so
-    lines drawn along them (structure-tensor orientation) pile up at the biological centre.
-    """
-    h, w = vi.shape
-    f = cv2.GaussianBlur(vi, (0, 0), 1.0)
-    gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
-    sg = max(1.0, scale * size)
-    jxx = cv2.GaussianBlur(gx * gx, (0, 0), sg)
-    jyy = cv2.GaussianBlur(gy * gy, (0, 0), sg)
-    jxy = cv2.GaussianBlur(gx * gy, (0, 0), sg)
-    tr = jxx + jyy
-    coh = np.sqrt((jxx - jyy) ** 2 + 4 * jxy**2) / (tr + 1e-9)
-    near = cv2.dilate(plant.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    wgt = coh * np.sqrt(tr) * near
-    ys, xs = np.nonzero(wgt > 0.2 * wgt.max())
-    if len(xs) < 5:
-        return np.zeros((h, w), np.float32)
-    if len(xs) > 1500:  # subsample for speed
-        sel = np.random.default_rng(0).choice(len(xs), 1500, replace=False)
-        ys, xs = ys[sel], xs[sel]
-    # edge direction = perpendicular to the dominant gradient
-    phi = 0.5 * np.arctan2(2 * jxy[ys, xs], jxx[ys, xs] - jyy[ys, xs]) + np.pi / 2
-    dx, dy = np.cos(phi).astype(np.float32), np.sin(phi).astype(np.float32)
-    L = int(0.6 * size)
-    t = np.arange(-L, L + 1, dtype=np.float32)
-    # nearest pixel along each line in float32/int32 (half the time of float64 rint); the
-    # offset keeps the values positive so the cast rounds like floor(x + ½)
-    off = np.float32(L + 1.5)
-    px = _line_pixels(xs, dx, t, off, L + 1, np.int32)
-    idx = _line_pixels(ys, dy, t, off, L + 1, np.int64)  # py, then the flat index (int64: no copy in bincount)
-    # points off the grid go to one extra bin (dropped), not through boolean selections of both
-    # arrays: every other bin sums the same weights in the same order
-    off_grid = (px.view(np.uint32) >= w) | (idx.view(np.uint64) >= h)  # negative → huge unsigned
-    idx *= w
-    idx += px
-    np.putmask(idx, off_grid, h * w)
-    ww = np.repeat(wgt[ys, xs].astype(np.float64), len(t))  # each line's weight on its points
-    acc = np.bincount(idx.ravel(), weights=ww, minlength=h * w + 1)[:h * w].reshape(h, w).astype(np.float32)
-    acc = cv2.GaussianBlur(acc, (0, 0), max(1.0, 0.02 * size))
-    return acc / (acc.max() + 1e-9)
-
-
-def _line_pixels(c: np.ndarray, d: np.ndarray, t: np.ndarray, off: np.float32, shift: int,
-                 dtype: type[np.signedinteger]) -> np.ndarray:
-    """(n, len(t)) integers (c + d·t + off) truncated, − shift, for each start c (n,) and direction
-    d (n,) float32 (float32 arithmetic); in place in one buffer (fresh large temporaries cost
-    page faults on the VM)."""
-    p = np.multiply(d[:, None], t[None, :])
-    p += c.astype(np.float32)[:, None]
-    p += off
-    q = p.astype(dtype)
-    q -= shift
-    return q
-
-
-FAN_GAP = 3.6  # rad: the far tips, seen from the apex, leave an empty sector at least this wide
-FAN_STRAIGHT = 1.15  # Σ geodesic / Σ straight-line distance from the apex to the far tips
-FAN_MIN_TIPS = 2
-FAN_MAX_PEAKS = 2  # more `vote_peaks`: leaves converge at several points (clover trefoil hubs) ...
-FAN_CLEAR_GAP = 3.6  # ... unless the plant, seen from the apex, spans ≤ 2π − this (≈ 154°) ...
-FAN_DENSE_PEAKS = 4  # ... and with this many peaks or more, ≤ 2π − FAN_DENSE_GAP (≈ 74°)
-FAN_DENSE_GAP = 5.0
-# measured: on clover the fan test passes at a peak on the rim of the plant (≥ 4 peaks); dense
-# grass fans reach 3–5 peaks along their blades. Until session 21 one gap (4.4, ≈ 108°) for > 2
-# peaks; bench seeds 0–7 then: 2 clovers of 4 and 6 peaks passed, spanning 85–95° (51.5, 42.5 mm off
-# → 0.7, 13.0 mm with FAN_DENSE_GAP), while 3-peak grass fans failed (44.4 → 4.5, 21.2 → 2.7,
-# 10.4 → 7.9 mm with 3.6; a 3-peak seedling 0.3 → 21.7 mm). Lost: a 5-peak bench grass spanning 95°
-# (4.5 → 19.3 mm); a drawn dense fan of 4 peaks spans 55° (tests). Of the 231 fan answers of seeds
-# 0–7 (200 on grass), 9 had ≥ 3 peaks.
-
-
-def _longest_empty_sector(angles: np.ndarray, bins: int = 72) -> float:
-    """Widest empty sector (rad) among directions `angles`, on a `bins`-bin circle."""
-    occ = np.zeros(bins, bool)
-    occ[((angles + np.pi) / (2 * np.pi) * bins).astype(int) % bins] = True
-    if occ.all():
-        return 0.0
-    occ = np.roll(occ, -int(np.argmax(occ)))  # start on an occupied bin: no run wraps round
-    edges = np.flatnonzero(np.diff(np.r_[occ, True].astype(np.int8)))  # run starts and ends
-    runs = edges[1::2] - edges[0::2]
-    return float(runs.max() if len(runs) else 0) * 2 * np.pi / bins
-
-
-def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int) -> np.ndarray | None:
-    """Apex of a fan-shaped plant (a grass tuft leaning one way), or None if it is not one.
-
-    The blades of a fan run straight from their common base to tips that all lie on one side,
-    so the tree median (Σ distance to the tips) slides along the blades towards the tips, and
-    so does any middle of the mask; the blade axes still converge at the base, the peak of
-    `axis_votes`. Accepted only when, seen from that peak, the far tips leave an empty sector
-    ≥ FAN_GAP, the plant's paths to them are straight (a peak on the end of one long blade
-    reaches the other tips round a bend), and the votes have ≤ FAN_MAX_PEAKS peaks
-    (`n_peaks`, from `vote_peaks`) or the whole plant lies in a sector the narrower the more
-    peaks there are (leaves converging at several points: trefoil hubs, rosette leaves).
-    """
-    near = cv2.dilate(plant.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    B = np.where(near, votes, 0)
-    iy, ix = np.unravel_index(int(np.argmax(B)), B.shape)
-    if B[iy, ix] <= 0:
-        return None
-    y0, y1 = max(iy - 2, 0), min(iy + 3, B.shape[0])
-    x0, x1 = max(ix - 2, 0), min(ix + 3, B.shape[1])
-    wg = np.clip(B[y0:y1, x0:x1] - 0.8 * B[iy, ix], 0, None)
-    gy, gx = np.mgrid[y0:y1, x0:x1]
-    p = np.array([(wg * gx).sum() / wg.sum(), (wg * gy).sum() / wg.sum()])
-    # cheap test first: the plant itself, seen from the peak, must leave an empty sector
-    py, px = np.nonzero(plant)
-    dx, dy = px - p[0], py - p[1]
-    sel = dx * dx + dy * dy > (0.15 * size) ** 2
-    if np.count_nonzero(sel) < 3:
-        return None
-    pix_gap = _longest_empty_sector(np.arctan2(dy[sel], dx[sel]))
-    if pix_gap < 0.8 * FAN_GAP or (n_peaks > FAN_MAX_PEAKS and pix_gap < FAN_CLEAR_GAP) or (n_peaks >= FAN_DENSE_PEAKS and pix_gap < FAN_DENSE_GAP):
-        return None
-    G, node = _grid_graph(crossing_cost(plant, size, bridge=False))
-    # paths start from the plant pixel nearest the peak (the apex may lie just off the mask,
-    # and a start in the gap band would count its crossing cost on every path)
-    k = int(np.argmin(dx * dx + dy * dy))
-    src = np.array([px[k], py[k]], float)
-    g0 = dijkstra(G, directed=True, indices=[node[py[k], px[k]]])[0]
-    tips = _tips(g0, node, plant, size)
-    if len(tips) == 0:
-        return None
-    d = np.argwhere(node >= 0)[tips][:, ::-1] - src
-    r = np.hypot(d[:, 0], d[:, 1])
-    far = r > 0.15 * size
-    if far.sum() < FAN_MIN_TIPS:
-        return None
-    ang = np.sort(np.arctan2(d[far, 1], d[far, 0]))
-    gap = float(np.max(np.diff(np.r_[ang, ang[0] + 2 * np.pi])))
-    straight = float(g0[tips[far]].sum() / r[far].sum())
-    if gap < FAN_GAP or not straight <= FAN_STRAIGHT:
-        return None
-    return p
-
-
-def _tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: float) -> np.ndarray:
-    """Leaf tips: local maxima of geodesic distance from the centre, one per 0.15·size window."""
-    h, w = plant.shape
-    valid = node >= 0
-    gm = np.zeros((h, w), np.float32)
-    gm[valid] = g0[node[valid]]
-    gm[~np.isfinite(gm)] = 0
-    gm[~plant] = 0
-    r = max(2, int(0.08 * size))
-    mx = cv2.dilate(gm, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    peak = (gm >= mx) & (gm > 0.2 * gm.max()) & plant
-    ys, xs = np.nonzero(peak)
-    if len(xs) == 0:
-        return np.zeros(0, int)
-    order = np.argsort(-gm[ys, xs])
-    chosen: list[tuple[int, int]] = []
-    for i in order:
-        if all((xs[i] - x) ** 2 + (ys[i] - y) ** 2 > (1.5 * r) ** 2 for y, x in chosen):
-            chosen.append((ys[i], xs[i]))
-        if len(chosen) >= 14:
-            break
-    return np.array([node[y, x] for y, x in chosen], int)
-
-
-def _grid_graph(cost: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
-    """8-connected grid graph over finite-cost pixels, both directions of every edge (for
-    `dijkstra(..., directed=True)`); edge weight = length × mean cost."""
-    h, w = cost.shape
-    ok = np.isfinite(cost)
-    node = -np.ones((h, w), np.int64)
-    node[ok] = np.arange(int(ok.sum()))
-    I, J, Wt = [], [], []
-    for dy, dx, L in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, math.sqrt(2)), (1, -1, math.sqrt(2))):
-        xs0, xs1 = max(0, -dx), w - max(0, dx)
-        a = node[0 : h - dy, xs0:xs1]
-        b = node[dy:h, xs0 + dx : xs1 + dx]
-        wgt = L * 0.5 * (cost[0 : h - dy, xs0:xs1] + cost[dy:h, xs0 + dx : xs1 + dx])
-        sel = (a >= 0) & (b >= 0)
-        I.append(a[sel])
-        J.append(b[sel])
-        Wt.append(wgt[sel])
-    n = int(ok.sum())
-    # both directions stored: Dijkstra then runs as directed (the same distances; undirected,
-    # scipy builds the transpose on every call: ~0.1 ms a call, ~8 calls a tree median)
-    I, J, Wt = np.concatenate(I), np.concatenate(J), np.concatenate(Wt)
-    G = sp.csr_matrix((np.r_[Wt, Wt], (np.r_[I, J], np.r_[J, I])), shape=(n, n))
-    return G, node

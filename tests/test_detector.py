@@ -208,12 +208,12 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
     on the plant's rim; their leaf axes converge at 4 and 6 points, and seen from the peak they
     span 85–95°: wider than the dense grass fans of that many peaks (FAN_DENSE_GAP). With the
     rule they are located 0.7 and 13.0 mm off (51.5 and 42.5 mm as fans)."""
-    import capm_field.plant_centre as pc
+    import capm_field.fan_apex as fan
 
     locate = _bench_weed(seed, index)
     err, method = locate()
     assert err < 0.015 and method != "fan_apex", (err, method)
-    monkeypatch.setattr(pc, "FAN_DENSE_GAP", 0.0)
+    monkeypatch.setattr(fan, "FAN_DENSE_GAP", 0.0)
     err, method = locate()
     assert err > 0.03 and method == "fan_apex", (err, method)
 
@@ -242,13 +242,13 @@ def test_leaf_axis_votes_spread_over_the_plant_do_not_pull_the_tree_median(seed:
     median: 31.0, 17.0 and 24.3 mm off. Weighted by how concentrated they are (VOTE_CONC): 4.3,
     3.3 and 5.9 mm. (Measured with every tip counting 1: since `TIP_SPREAD` the grass's bunched tips
     count less and its answer is 30.9 mm off, a loss its comment counts.)"""
-    import capm_field.plant_centre as pc
+    import capm_field.tree_median as tm
 
-    monkeypatch.setattr(pc, "TIP_SPREAD", 0.0)
+    monkeypatch.setattr(tm, "TIP_SPREAD", 0.0)
     locate = _bench_weed(seed, index, kind)
     err, method = locate()
     assert err < 0.01 and method == "tree_median", (err, method)
-    monkeypatch.setattr(pc, "VOTE_CONC", None)
+    monkeypatch.setattr(tm, "VOTE_CONC", None)
     err, method = locate()
     assert err > 0.015 and method == "tree_median", (err, method)
 
@@ -1383,7 +1383,7 @@ def test_tree_median_of_two_leaves_seen_from_inside_one_is_at_the_stem() -> None
     is least at that tip. The far end of the plant is then the second tip and the centre the
     narrow stem between them (measured: 11 of 12 masks within 6 px of the stem's middle; 8 of 12
     before, the other 3 at a leaf end ~50 px away)."""
-    from capm_field import plant_centre
+    from capm_field import tree_median
 
     rng = np.random.default_rng(5)
     near = 0
@@ -1394,7 +1394,7 @@ def test_tree_median_of_two_leaves_seen_from_inside_one_is_at_the_stem() -> None
         cv2.ellipse(m, (int(top[0]), int(top[1])), (int(rng.uniform(15, 18)), int(rng.uniform(12, 15))), rng.uniform(30, 60), 0, 360, 1, -1)
         cv2.ellipse(m, (int(bot[0]), int(bot[1])), (int(rng.uniform(12, 15)), int(rng.uniform(10, 13))), rng.uniform(30, 60), 0, 360, 1, -1)
         cv2.line(m, (int(top[0]), int(top[1])), (int(bot[0]), int(bot[1])), 1, int(rng.integers(3, 6)))
-        uv, _, _ = plant_centre.tree_median(m.astype(bool))
+        uv, _, _ = tree_median.tree_median(m.astype(bool))
         near += math.hypot(uv[0] - 45.0, uv[1] - 52.0) < 6.0
     assert near >= 11, near
 
@@ -1438,17 +1438,17 @@ def test_tree_median_crosses_a_bare_middle_and_gaps_between_leaf_clusters(monkey
     the provisional centre has tips: 0.36–0.41 × size off on most masks). Measured on 12 masks with
     every tip counting 1 (`TIP_SPREAD` 0: its bunch weights move these masks' answers both ways, 10 → 9
     rosettes within 0.06 × size, and 3 → 4 clusters without the bridge)."""
-    from capm_field import plant_centre
+    from capm_field import geodesic, tree_median
 
-    monkeypatch.setattr(plant_centre, "TIP_SPREAD", 0.0)
+    monkeypatch.setattr(tree_median, "TIP_SPREAD", 0.0)
 
     def near(on: bool) -> int:
-        monkeypatch.setattr(plant_centre, flag, on)
+        monkeypatch.setattr(geodesic, flag, on)
         rng, k = np.random.default_rng(3), 0
         for _ in range(12):
             m, c = make(rng)
             ys, xs = np.nonzero(m)
-            uv, _, _ = plant_centre.tree_median(m)
+            uv, _, _ = tree_median.tree_median(m)
             k += math.hypot(uv[0] - c[0], uv[1] - c[1]) < tol * math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
         return k
 
@@ -1461,7 +1461,7 @@ def test_tree_median_graph_stays_within_the_plants_hull(monkeypatch, make) -> No
     """`crossing_cost` with `HULL_BAND`: no finite-cost pixel lies outside the plant's convex hull, the
     graph has ≥ 10 % fewer nodes than with the band all round, and the tree median moves by
     < 0.02 × size (measured on these 12 + 12 masks: 14–27 % fewer nodes, the median unmoved)."""
-    from capm_field import plant_centre
+    from capm_field import geodesic, tree_median
 
     rng = np.random.default_rng(5)
     for _ in range(12):
@@ -1470,12 +1470,12 @@ def test_tree_median_graph_stays_within_the_plants_hull(monkeypatch, make) -> No
         size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
         hull = np.zeros(m.shape, np.uint8)
         cv2.fillConvexPoly(hull, cv2.convexHull(np.c_[xs, ys].astype(np.int32)), 1)
-        monkeypatch.setattr(plant_centre, "HULL_BAND", True)
-        cut = np.isfinite(plant_centre.crossing_cost(m, size))
-        uv_cut = plant_centre.tree_median(m)[0]
-        monkeypatch.setattr(plant_centre, "HULL_BAND", False)
-        ring = np.isfinite(plant_centre.crossing_cost(m, size))
-        uv_ring = plant_centre.tree_median(m)[0]
+        monkeypatch.setattr(geodesic, "HULL_BAND", True)
+        cut = np.isfinite(geodesic.crossing_cost(m, size))
+        uv_cut = tree_median.tree_median(m)[0]
+        monkeypatch.setattr(geodesic, "HULL_BAND", False)
+        ring = np.isfinite(geodesic.crossing_cost(m, size))
+        uv_ring = tree_median.tree_median(m)[0]
         assert not (cut & (hull == 0)).any()
         assert (ring & (hull == 0)).any() and cut.sum() <= 0.9 * ring.sum(), (cut.sum(), ring.sum())
         assert math.hypot(*(uv_cut - uv_ring)) < 0.02 * size, (uv_cut, uv_ring)
@@ -1867,20 +1867,20 @@ def test_a_bunch_of_leaf_tips_counts_about_as_one_in_the_tree_median(monkeypatch
     drawn plants of three equal stems, one ending in a bunch of six leaves. Measured: median 2.3 px
     from the crown, at most 6.2 px; with every tip counting 1 the bunch pulls the median along its
     stem (median 7.7 px, up to 58 px)."""
-    from capm_field import plant_centre
+    from capm_field import tree_median
 
     def errors() -> np.ndarray:
         rng = np.random.default_rng(3)
         out = []
         for _ in range(12):
             m, c = _stems_with_a_bunch(rng)
-            uv, _, _ = plant_centre.tree_median(m)
+            uv, _, _ = tree_median.tree_median(m)
             out.append(math.hypot(uv[0] - c[0], uv[1] - c[1]))
         return np.array(out)
 
     e = errors()
     assert np.median(e) < 4.0 and e.max() < 8.0, e.round(1)
-    monkeypatch.setattr(plant_centre, "TIP_SPREAD", 0.0)
+    monkeypatch.setattr(tree_median, "TIP_SPREAD", 0.0)
     e = errors()
     assert np.median(e) > 6.0 and e.max() > 30.0, e.round(1)
 
@@ -1893,13 +1893,13 @@ def test_leaf_bunches_on_stems_do_not_pull_the_crown_of_a_field_photo(seed: int,
     stems (purslane, chickweed) or whose true leaves crowd one side (a seedling): within 0.15 S of the
     crown (measured 0.02–0.13 S), and > 0.3 S off (in the bunch) when every tip counts 1
     (`TIP_SPREAD` = 0; measured 0.33–0.58 S)."""
-    from capm_field import plant_centre
+    from capm_field import tree_median
 
     fpw = field_photos()
     img, truth, S, _ = fpw.render(np.random.default_rng([seed, i]), kind)
     roi = fpw.roi_near(seed, i, truth, S) if with_roi else None
     det = detect_centre(img, roi)
     assert crown_off(det, truth, S) < 0.15, det
-    monkeypatch.setattr(plant_centre, "TIP_SPREAD", 0.0)
+    monkeypatch.setattr(tree_median, "TIP_SPREAD", 0.0)
     det = detect_centre(img, roi)
     assert det.reason is None and crown_off(det, truth, S) > 0.3, det
