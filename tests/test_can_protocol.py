@@ -27,7 +27,6 @@ from drivers.can.codec import (
 )
 from drivers.interfaces import LinkLost
 from sim_bench.can_rig import CanBench, RawHost
-from sim_bench.sim_igniter import IgniterBoard
 from sim_bench.drivers_bench import measure_can_link_loss, measure_can_stream, measure_igniter_cutoff
 
 
@@ -254,7 +253,7 @@ def test_clean_shutdown_no_threads_left_and_no_hang():
     assert time.monotonic() - t0 < 5.0
     time.sleep(0.1)
     assert threading.active_count() <= base
-    assert not any(ch.startswith(f"capm-") and q for ch, q in virt.channels.items())
+    assert not any(ch.startswith("capm-") and q for ch, q in virt.channels.items())
 
 
 def _ignite_quiet(bench: CanBench) -> None:
