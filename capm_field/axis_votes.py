@@ -10,6 +10,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+THIN_BLADE, THIN_ROUND = 0.02, 0.06  # a plant's mean half-width / its size: below THIN_ROUND its parts are blades
+# (`fan_apex` is tried first, and the tree median's votes count: fully from THIN_BLADE down); round parts' edges
+# vote all over the plant
 SCATTER_PEAKS = 4  # vote peaks (≥ 0.7 of the highest, 0.12·size apart) that mark a plant without one apex
 # measured on the bench (seed 0, tree-median cases): clover ≥ 2 always, mostly ≥ 3; rosettes 1 in
 # 46 of 64; geometric median at ≥ 4 peaks: wrong 22 → 8, p90 29.7 → 19.7 mm, median 5.7 → 5.2 mm
@@ -20,9 +23,6 @@ def vote_peaks(votes: np.ndarray, size: float) -> int:
     r = max(2, int(0.12 * size))
     mx = cv2.dilate(votes, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
     return int(np.count_nonzero((votes >= mx) & (votes >= 0.7)))
-
-
-THIN_BLADE, THIN_ROUND = 0.02, 0.06  # mean half-width / plant size
 
 
 def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float, scale: float = 0.015) -> np.ndarray:
