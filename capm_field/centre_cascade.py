@@ -169,7 +169,7 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         uv, lone = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
         if uv is None and lone is None and FINE_STALK_PX and max(X1 - X0, Y1 - Y0) >= FINE_STALK_PX:
             hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
-            if compound_leaf.has_compound_leaves(hubs):
+            if compound_leaf.has_compound_leaves(hubs):  # (a lone stalk found only there is not used: not measured)
                 uv, _ = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil, FINE_STALK_PX)
         if uv is not None:
             method = "stalk_centre"

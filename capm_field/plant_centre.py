@@ -152,15 +152,15 @@ def meeting_point(segs: list, tol: float, reach: float, directed: bool = False) 
     if best is None:
         return None
     # least-squares point of the supporting lines
+    sup = supporting(segs, best, tol, reach, directed)
+    if len(sup) < 2:
+        return None
     A = np.zeros((2, 2))
     bb = np.zeros(2)
-    sup = supporting(segs, best, tol, reach, directed)
     for (c, d, h, w) in sup:
         Pm = np.eye(2) - np.outer(d, d)
         A += w * Pm
         bb += w * Pm @ c
-    if len(sup) < 2:
-        return None
     return np.linalg.solve(A + 1e-9 * np.eye(2), bb)
 
 
