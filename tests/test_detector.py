@@ -125,15 +125,15 @@ def _rosette_touching_a_stone(seed: int, plant: bool = True) -> tuple[np.ndarray
 def test_plant_touching_a_stone_the_white_balance_made_green_is_found(seed: int, monkeypatch) -> None:
     """A plant and a larger neutral stone in one stage-1 component: the component's median colour
     is the stone's (not greener than magenta in the camera's colours), so it was dropped whole
-    ("no_plant"). Its green part alone is judged instead (`detector._green_part`); the stone
+    ("no_plant"). Its green part alone is judged instead (`plant_choice._green_part`); the stone
     alone stays no plant."""
-    import capm_field.detector as det_mod
+    import capm_field.plant_choice as choice_mod
 
     img, c, S = _rosette_touching_a_stone(seed)
     det = detect_centre(img)
     assert det.reason is None and np.hypot(*(np.array(det.pixel) - c)) < 0.15 * S, (det, c)
     assert detect_centre(_rosette_touching_a_stone(seed, plant=False)[0]).reason == "no_plant"
-    monkeypatch.setattr(det_mod, "SPLIT_GREEN", False)
+    monkeypatch.setattr(choice_mod, "SPLIT_GREEN", False)
     assert detect_centre(img).reason == "no_plant"
 
 

@@ -1,0 +1,142 @@
+"""Stage 0 of the weed-centre detector: the search window of one frame.
+
+The ROI's bounding box grown by ROI_MARGIN, downscaled once to the index image (≤ MID_PX_STAGE1
+px) and to the stage-1 grid (≤ WORK_PX on its longest side); the frame's sanity checks (dtype,
+shape, exposure, flatness, pixel noise: "bad_image"), the ROI mask on the grid and the soil
+white balance. Both looks of `capm_field.detector` and its shadowed-part looks share it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .detection import Detection
+from .roi import ROI_MARGIN, Roi, RoiLike, as_roi, roi_mask
+from .vegetation import downscale, resize_down, soil_gains
+
+WORK_PX = 320  # stage 1 (find the plant): longest side of the search window after downscaling
+MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is computed on (stage 1)
+
+
+@dataclass(frozen=True)
+class SearchWindow:
+    """The search window of one frame and what both looks compute from it alone (made once per
+    frame: the second look would repeat the two large area resamplings and the soil statistics).
+    Arrays are shared between the looks and must not be modified."""
+
+    roi: Roi | None
+    x0: int  # window in the full image: [x0, x1) × [y0, y1)
+    y0: int
+    x1: int
+    y1: int
+    mid: np.ndarray  # the window at ≤ MID_PX_STAGE1 px (the index is computed on it)
+    small: np.ndarray  # the window at ≤ WORK_PX on its longest side (stage-1 grid)
+    sx: float  # window pixels per `small` pixel
+    sy: float
+    inside: np.ndarray  # ROI mask on the stage-1 grid
+    n_in: int  # its pixel count
+    gains: np.ndarray  # soil white balance of the first look (`soil_gains`)
+    soil: np.ndarray | None = None  # where the soil statistics are measured, if not all of `inside`
+
+    def to_full(self, p: np.ndarray) -> np.ndarray:
+        """Stage-1 grid point (j, i) → full image (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
+        return np.array([self.x0 + (p[0] + 0.5) * self.sx - 0.5, self.y0 + (p[1] + 0.5) * self.sy - 0.5])
+
+
+def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
+    """Search window (ROI bounding box grown by the margin), its downscales, exposure check, ROI
+    mask and soil white balance; Detection "bad_image" when the frame or roi is not usable."""
+    bad = Detection(None, 0.0, "bad_image")
+    if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        return bad
+    H, W = img.shape[:2]
+    if H < 16 or W < 16:
+        return bad
+    try:
+        roi = as_roi(roi_in)
+        if roi is not None:
+            c, ax, ang = roi.params()  # raises for a conic without interior
+            # an ellipse holding all four corners holds the whole (convex) frame: no ROI then
+            if bool(np.all(roi.contains(np.array([[0.0, 0.0], [W - 1.0, 0.0], [0.0, H - 1.0], [W - 1.0, H - 1.0]])))):
+                roi = None
+    except Exception:  # noqa: BLE001
+        return bad
+
+    # ---- search window (ROI bounding box grown by the margin) and stage-1 downscale
+    if roi is not None:
+        t = math.radians(ang)
+        ex = ROI_MARGIN * math.hypot(ax[0] * math.cos(t), ax[1] * math.sin(t))
+        ey = ROI_MARGIN * math.hypot(ax[0] * math.sin(t), ax[1] * math.cos(t))
+        x0, y0 = max(int(math.floor(c[0] - ex)), 0), max(int(math.floor(c[1] - ey)), 0)
+        x1, y1 = min(int(math.ceil(c[0] + ex)) + 1, W), min(int(math.ceil(c[1] + ey)) + 1, H)
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            return bad
+    else:
+        x0, y0, x1, y1 = 0, 0, W, H
+    crop = img[y0:y1, x0:x1]
+    # the index image (≤ MID_PX_STAGE1 px, see pooled_index) is made once; the ≤ WORK_PX grid is
+    # resampled from it rather than from the full window (one large area resampling, not two)
+    mid = downscale(crop, MID_PX_STAGE1)
+    s = max(1.0, max(crop.shape[:2]) / WORK_PX)
+    if s > 1.0:
+        small = resize_down(mid, (max(1, round(crop.shape[1] / s)), max(1, round(crop.shape[0] / s))))
+    else:
+        small = crop
+    sx, sy = crop.shape[1] / small.shape[1], crop.shape[0] / small.shape[0]
+
+    # ---- exposure sanity on the window
+    gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
+    mean = float(cv2.mean(gray)[0])
+    # flat = no variation in any channel (a green leaf can have the soil's grey level exactly)
+    std = float(cv2.meanStdDev(small)[1].max())
+    b_, g_, r_ = cv2.split(small)
+    sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= 250)) / gray.size  # clipped to white
+    # (flat: also no pixel off by FLAT_RANGE, which a plant of a few grid pixels is, however small)
+    flat = std < 1.5 and int(np.ptp(small.reshape(-1, 3), axis=0).max()) < FLAT_RANGE
+    if mean < 12 or sat > 0.6 or flat or mean > 245:
+        return bad
+    if _coherence(mid) < NOISE_COHERENCE and _pixel_noise(crop) >= NOISE_SIGMA:
+        # strong noise, not a scene (a faulty sensor or a corrupted stream): max-pooled, it looks
+        # green. Weak noise on a flat soil has no structure either, but a leaf as bright as the
+        # soil is structure in colour only: such a frame is read, not rejected
+        return bad
+
+    inside = np.ones(gray.shape, bool)
+    if roi is not None:
+        inside = roi_mask(roi, gray.shape, x0, y0, sx, sy)
+    n_in = int(np.count_nonzero(inside))
+    if roi is not None and n_in < 16:
+        return bad
+    return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside))
+
+
+FLAT_RANGE = 16  # grey levels: a blank frame under sensor noise σ ≤ 5 stays within it on the stage-1 grid
+NOISE_COHERENCE = 0.65  # measured: bench, photo-like and other-renderer frames ≥ 0.87; RGB noise ≤ 0.56
+NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise`) from which an incoherent frame is noise:
+# uniform RGB noise ≈ 50 (JPEG-compressed ≈ 51–54), Gaussian σ = 40 per channel ≈ 27, a flat soil under σ = 30 ≈ 20
+
+
+def _pixel_noise(bgr: np.ndarray) -> float:
+    """Pixel-scale noise σ of the grey level, in grey levels, from the mean absolute difference of
+    horizontal neighbours on every 8th row (σ = E|d|·√π / 2 for Gaussian noise). Asked only of
+    frames without structure, where the scene's edges add little."""
+    g = cv2.cvtColor(np.ascontiguousarray(bgr[::8]), cv2.COLOR_BGR2GRAY).astype(np.int16)
+    if g.shape[1] < 2:
+        return 0.0
+    return float(np.abs(np.diff(g, axis=1)).mean()) * math.sqrt(math.pi) / 2.0
+
+
+def _coherence(bgr: np.ndarray) -> float:
+    """Spread of the grey level after 2 × 2 averaging over its spread before: ≈ 0.5 for white
+    noise (no spatial structure), ≈ 1 for a scene (structure larger than a pixel)."""
+    g = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    h, w = (g.shape[0] // 2) * 2, (g.shape[1] // 2) * 2
+    if h < 4 or w < 4:
+        return 1.0
+    s0 = float(cv2.meanStdDev(g[:h, :w])[1][0, 0])
+    s2 = float(cv2.meanStdDev(cv2.resize(g[:h, :w], (w // 2, h // 2), interpolation=cv2.INTER_AREA))[1][0, 0])
+    return s2 / s0 if s0 > 0 else 1.0
