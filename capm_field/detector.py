@@ -258,8 +258,10 @@ def _locate(img: np.ndarray, win: SearchWindow, choice: Choice, debug: dict | No
         debug["mask_full"] = full
 
     # ---- stage 2: centre on a plant-normalised grid from the full-resolution crop
-    ys, xs = np.nonzero(gmask)
-    bx0, by0, bx1, by1 = mask_box(xs, ys, to_full)
+    # the mask's extreme grid pixels, by OpenCV's bounding box of a 0/1 image (the same box as
+    # the extremes of np.nonzero, in ~1/20 of its time on the stage-1 grid)
+    gx, gy, gw, gh = cv2.boundingRect(np.ascontiguousarray(gmask).view(np.uint8))
+    bx0, by0, bx1, by1 = mask_box(np.array([gx, gx + gw - 1]), np.array([gy, gy + gh - 1]), to_full)
     centre, tips, sharp = centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
                                           stage1=(gmask, x0, y0, sx, sy))
     if centre is None:

@@ -127,16 +127,24 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
     for g in groups:
         if debug is None and int(stats[g, cv2.CC_STAT_AREA].sum()) < (VIVID_AREA if vivid else 1.5) * min_area:
             continue  # too small to be chosen: no features needed
+        # the group's mask is made and read within the union of its components' boxes only (the
+        # same pixels in the same order as over the whole grid: the same values, ~0.5 ms less a frame)
+        l0, t0 = int(stats[g, cv2.CC_STAT_LEFT].min()), int(stats[g, cv2.CC_STAT_TOP].min())
+        r0 = int((stats[g, cv2.CC_STAT_LEFT] + stats[g, cv2.CC_STAT_WIDTH]).max())
+        b0 = int((stats[g, cv2.CC_STAT_TOP] + stats[g, cv2.CC_STAT_HEIGHT]).max())
+        local = lab[t0:b0, l0:r0] == g[0] if len(g) == 1 else np.isin(lab[t0:b0, l0:r0], g)
+        gm = np.zeros(lab.shape, bool)
+        gm[t0:b0, l0:r0] = local
         if len(g) == 1:  # the component's own features (same pixels in the same order: same values)
-            gm = lab == g[0]
             f = dict(feats[g[0]])
         else:
-            gm = np.isin(lab, g)
-            f = candidate_features(gm, vi, small, gains, soil_level, sig, cen_s, rad_s)
+            f = candidate_features(local, vi[t0:b0, l0:r0], small[t0:b0, l0:r0], gains, soil_level, sig, cen_s, rad_s,
+                                   origin=(l0, t0))
             if vivid and contrast_band(f):
-                gy, gx = np.nonzero(gm)
-                bx, by = int(gx.min()), int(gy.min())
-                f["lc"], f["core"] = _local_contrast(img, gm[by:gy.max() + 1, bx:gx.max() + 1], (bx, by), win, gains, thr, soil_level)
+                gy, gx = np.nonzero(local)
+                by, bx = int(gy.min()), int(gx.min())
+                f["lc"], f["core"] = _local_contrast(img, local[by:gy.max() + 1, bx:gx.max() + 1], (l0 + bx, t0 + by), win,
+                                                     gains, thr, soil_level)
         f["area_frac"] = f["area"] / n_in
         box = None  # full-image box of a candidate with a positive score, for "contenders"
         f["ok"] = bool(f["area"] >= (VIVID_AREA if vivid else 1.5) * min_area and plant_like(f, vivid)
@@ -145,7 +153,9 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
             # green mass measured at full resolution (the stage-1 max-pooling inflates small
             # objects), × a mild pull towards the TROI centre (the prescan's estimate), ÷ 3 for a
             # candidate cut by the ROI margin (an object reaching in from outside the TROI)
-            ys, xs = np.nonzero(gm)
+            ys, xs = np.nonzero(local)
+            xs += l0
+            ys += t0
             fx0, fy0, fx1, fy1 = mask_box(xs, ys, to_full)
             sub = img[max(int(fy0), 0):int(math.ceil(fy1)) + 1, max(int(fx0), 0):int(math.ceil(fx1)) + 1]
             vf = vegetation_index(sub, gains=gains, lab=vivid)
@@ -156,7 +166,7 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
                 f["elong_full"] = elongation(xx, yy)
             else:
                 f["elong_full"] = 1.0
-            cut = bool(np.any(gm & rim))
+            cut = bool(np.any(local & rim[t0:b0, l0:r0]))
             cf = to_full(np.array([xs.mean(), ys.mean()]))  # centroid in the full image
             g = roi.on_ground(cf) if roi is not None else None
             if g is not None:  # distance from X_w and green area on the ground (in X_w's pixels), not in the image
