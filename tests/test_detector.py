@@ -1903,3 +1903,30 @@ def test_leaf_bunches_on_stems_do_not_pull_the_crown_of_a_field_photo(seed: int,
     monkeypatch.setattr(tree_median, "TIP_SPREAD", 0.0)
     det = detect_centre(img, roi)
     assert det.reason is None and crown_off(det, truth, S) > 0.3, det
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_blobs=st.integers(1, 4))
+def test_candidate_features_on_the_box_crop_equal_those_on_the_whole_grid(seed: int, n_blobs: int) -> None:
+    """Stage 1 (`plant_choice.choose`) measures a group of components on the union of their
+    boxes, with `origin` its top-left grid cell: every feature must be exactly the one measured
+    over the whole grid (the same pixels in the same order)."""
+    from capm_field.candidates import candidate_features
+
+    rng = np.random.default_rng(seed)
+    h, w = 60, 90
+    gm = np.zeros((h, w), bool)
+    for _ in range(n_blobs):
+        cx, cy, r = rng.integers(5, w - 5), rng.integers(5, h - 5), rng.integers(1, 6)
+        gm |= (np.arange(w)[None] - cx) ** 2 + (np.arange(h)[:, None] - cy) ** 2 <= r * r
+    vi = rng.normal(0, 0.05, (h, w)).astype(np.float32)
+    small = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    gains = np.array([0.9, 1.0, 1.1], np.float32)
+    ys, xs = np.nonzero(gm)
+    t0, b0, l0, r0 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    args = (gains, -0.02, 0.01, np.array([w / 2, h / 2]), 40.0)
+    whole = candidate_features(gm, vi, small, *args)
+    crop = candidate_features(gm[t0:b0, l0:r0], vi[t0:b0, l0:r0], small[t0:b0, l0:r0], *args, origin=(int(l0), int(t0)))
+    assert crop == whole
+    if l0 > 0 or t0 > 0:  # the origin matters: without it the centroid (and so d) moves
+        assert candidate_features(gm[t0:b0, l0:r0], vi[t0:b0, l0:r0], small[t0:b0, l0:r0], *args)["d"] != whole["d"]
