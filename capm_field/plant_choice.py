@@ -23,7 +23,7 @@ from .detection import Detection
 from .order_stats import elongation, median, percentile
 from .search_window import MID_PX_STAGE1, SearchWindow
 from .vegetation import pooled_index, vegetation_index
-from .vegetation_mask import group_components, hysteresis, threshold
+from .vegetation_mask import group_box, group_components, hysteresis, threshold
 
 AMBIGUOUS = 0.8  # runner-up score / best score above which the choice is "ambiguous" (see `capm_field.detector`)
 
@@ -129,9 +129,7 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
             continue  # too small to be chosen: no features needed
         # the group's mask is made and read within the union of its components' boxes only (the
         # same pixels in the same order as over the whole grid: the same values, ~0.5 ms less a frame)
-        l0, t0 = int(stats[g, cv2.CC_STAT_LEFT].min()), int(stats[g, cv2.CC_STAT_TOP].min())
-        r0 = int((stats[g, cv2.CC_STAT_LEFT] + stats[g, cv2.CC_STAT_WIDTH]).max())
-        b0 = int((stats[g, cv2.CC_STAT_TOP] + stats[g, cv2.CC_STAT_HEIGHT]).max())
+        l0, t0, r0, b0 = group_box(stats, g)
         local = lab[t0:b0, l0:r0] == g[0] if len(g) == 1 else np.isin(lab[t0:b0, l0:r0], g)
         gm = np.zeros(lab.shape, bool)
         gm[t0:b0, l0:r0] = local

@@ -74,6 +74,15 @@ def hysteresis(vi: np.ndarray, thr: float, soil: float, inside: np.ndarray) -> n
 GROUP_GAP = 0.35  # × the group's diameter: largest gap a component may be joined across
 
 
+def group_box(stats: np.ndarray, g: list[int]) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1), x1 and y1 exclusive: the union of the boxes of components `g` (rows of
+    OpenCV's component `stats`), which holds every pixel of the group."""
+    x0, y0 = int(stats[g, cv2.CC_STAT_LEFT].min()), int(stats[g, cv2.CC_STAT_TOP].min())
+    x1 = int((stats[g, cv2.CC_STAT_LEFT] + stats[g, cv2.CC_STAT_WIDTH]).max())
+    y1 = int((stats[g, cv2.CC_STAT_TOP] + stats[g, cv2.CC_STAT_HEIGHT]).max())
+    return x0, y0, x1, y1
+
+
 def group_components(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> list[list[int]]:
     """Join components separated by a gap smaller than GROUP_GAP × the larger one's diameter.
 
@@ -92,10 +101,8 @@ def group_components(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> li
         used.add(k)
         while True:
             # the group's pixel extent is the union of its components' boxes (no mask needed)
-            gx0 = int(stats[g, cv2.CC_STAT_LEFT].min())
-            gy0 = int(stats[g, cv2.CC_STAT_TOP].min())
-            gx1 = int((stats[g, cv2.CC_STAT_LEFT] + stats[g, cv2.CC_STAT_WIDTH]).max()) - 1
-            gy1 = int((stats[g, cv2.CC_STAT_TOP] + stats[g, cv2.CC_STAT_HEIGHT]).max()) - 1
+            gx0, gy0, gx1, gy1 = group_box(stats, g)
+            gx1, gy1 = gx1 - 1, gy1 - 1
             diam = math.hypot(gx1 - gx0 + 1, gy1 - gy0 + 1)
             # only components whose box comes within reach can join: crop to that window
             r = int(math.ceil(GROUP_GAP * diam)) + 1
