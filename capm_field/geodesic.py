@@ -82,24 +82,29 @@ def geodesic_tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: flo
 
 def grid_graph(cost: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
     """8-connected grid graph over finite-cost pixels, both directions of every edge (for
-    `dijkstra(..., directed=True)`); edge weight = length × mean cost."""
+    `dijkstra(..., directed=True)`); edge weight = length × mean cost.
+
+    Built as CSR directly: nodes are numbered row-major, so a node's neighbours taken in the
+    order up-left … down-right come in increasing index order, as scipy's COO → CSR conversion
+    sorts them (the same matrix without that sort: ~0.4 ms less for a 4 000-node plant)."""
     h, w = cost.shape
-    ok = np.isfinite(cost)
-    node = -np.ones((h, w), np.int64)
-    node[ok] = np.arange(int(ok.sum()))
-    I, J, Wt = [], [], []
-    for dy, dx, L in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, math.sqrt(2)), (1, -1, math.sqrt(2))):
-        xs0, xs1 = max(0, -dx), w - max(0, dx)
-        a = node[0 : h - dy, xs0:xs1]
-        b = node[dy:h, xs0 + dx : xs1 + dx]
-        wgt = L * 0.5 * (cost[0 : h - dy, xs0:xs1] + cost[dy:h, xs0 + dx : xs1 + dx])
-        sel = (a >= 0) & (b >= 0)
-        I.append(a[sel])
-        J.append(b[sel])
-        Wt.append(wgt[sel])
-    n = int(ok.sum())
-    # both directions stored: Dijkstra then runs as directed (the same distances; undirected,
-    # scipy builds the transpose on every call: ~0.1 ms a call, ~8 calls a tree median)
-    I, J, Wt = np.concatenate(I), np.concatenate(J), np.concatenate(Wt)
-    G = sp.csr_matrix((np.r_[Wt, Wt], (np.r_[I, J], np.r_[J, I])), shape=(n, n))
-    return G, node
+    pc = np.pad(cost, 1, constant_values=np.inf)  # a border of ∞: every pixel has 8 neighbours
+    at = np.flatnonzero(np.isfinite(pc))
+    n = len(at)
+    pn = np.full(pc.shape, -1, np.int64)
+    pn.ravel()[at] = np.arange(n)
+    nbr = at[:, None] + _offsets(w + 2)  # (n, 8) flat positions of the neighbours
+    j = pn.ravel().take(nbr)
+    wt = _LENGTHS * 0.5 * (pc.ravel().take(at)[:, None] + pc.ravel().take(nbr))
+    has = j >= 0
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.count_nonzero(has, axis=1), out=indptr[1:])
+    return sp.csr_matrix((wt[has], j[has], indptr), shape=(n, n)), pn[1:-1, 1:-1]
+
+
+def _offsets(row: int) -> np.ndarray:
+    """Flat offsets of the 8 neighbours on a grid `row` pixels wide, up-left … down-right."""
+    return np.array([-row - 1, -row, -row + 1, -1, 1, row - 1, row, row + 1])
+
+
+_LENGTHS = np.array([math.sqrt(2), 1.0, math.sqrt(2), 1.0, 1.0, math.sqrt(2), 1.0, math.sqrt(2)])  # edge lengths

@@ -1660,6 +1660,37 @@ def test_threshold_equals_its_plain_numpy_definition(seed, n, share, soil, green
     assert threshold(v) == _threshold_reference(v)
 
 
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 70), w=st.integers(1, 70), share=st.floats(0.0, 1.0),
+       holes=st.floats(0.0, 0.3))
+def test_grid_graph_equals_the_coo_built_matrix(seed, h, w, share, holes) -> None:
+    """`geodesic.grid_graph` (CSR built directly) is the matrix scipy builds from the edge list
+    (COO → CSR): the same rows, columns and weights, so Dijkstra's distances cannot move."""
+    import scipy.sparse as sp
+
+    from capm_field.geodesic import GAP_COST, grid_graph
+
+    rng = np.random.default_rng(seed)
+    cost = np.where(rng.random((h, w)) < share, 1.0, GAP_COST)
+    cost[rng.random((h, w)) < holes] = np.inf
+    G, node = grid_graph(cost)
+    ok = np.isfinite(cost)
+    assert np.array_equal(node[ok], np.arange(int(ok.sum()))) and (node[~ok] == -1).all()
+    rows, cols, wts = [], [], []
+    for y, x in zip(*np.nonzero(ok)):
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                yy, xx = y + dy, x + dx
+                if (dy or dx) and 0 <= yy < h and 0 <= xx < w and ok[yy, xx]:
+                    rows.append(node[y, x])
+                    cols.append(node[yy, xx])
+                    wts.append((math.sqrt(2) if dy and dx else 1.0) * 0.5 * (cost[y, x] + cost[yy, xx]))
+    want = sp.csr_matrix((wts, (rows, cols)), shape=G.shape)
+    want.sort_indices()
+    assert np.array_equal(G.indptr, want.indptr) and np.array_equal(G.indices, want.indices)
+    assert np.array_equal(G.data, want.data)
+
+
 @settings(max_examples=100, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 120), w=st.integers(1, 120),
        sigma=st.floats(0.3, 4.0), level=st.floats(0.3, 0.7))
