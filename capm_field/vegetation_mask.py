@@ -101,13 +101,12 @@ def group_components(lab: np.ndarray, stats: np.ndarray, comps: list[int]) -> li
         used.add(k)
         while True:
             # the group's pixel extent is the union of its components' boxes (no mask needed)
-            gx0, gy0, gx1, gy1 = group_box(stats, g)
-            gx1, gy1 = gx1 - 1, gy1 - 1
-            diam = math.hypot(gx1 - gx0 + 1, gy1 - gy0 + 1)
+            gx0, gy0, gx1, gy1 = group_box(stats, g)  # (gx1, gy1 exclusive)
+            diam = math.hypot(gx1 - gx0, gy1 - gy0)
             # only components whose box comes within reach can join: crop to that window
             r = int(math.ceil(GROUP_GAP * diam)) + 1
-            y0, y1 = max(gy0 - r, 0), min(gy1 + r + 1, lab.shape[0])
-            x0, x1 = max(gx0 - r, 0), min(gx1 + r + 1, lab.shape[1])
+            y0, y1 = max(gy0 - r, 0), min(gy1 + r, lab.shape[0])
+            x0, x1 = max(gx0 - r, 0), min(gx1 + r, lab.shape[1])
             cand = [m for m in comps if m not in used and stats[m, cv2.CC_STAT_AREA] <= stats[k, cv2.CC_STAT_AREA]
                     and stats[m, cv2.CC_STAT_LEFT] < x1 and stats[m, cv2.CC_STAT_LEFT] + stats[m, cv2.CC_STAT_WIDTH] > x0
                     and stats[m, cv2.CC_STAT_TOP] < y1 and stats[m, cv2.CC_STAT_TOP] + stats[m, cv2.CC_STAT_HEIGHT] > y0]
