@@ -34,6 +34,7 @@ Run
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 160 --seed 0 --roi
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --kinds clover,grass --save-fails fails/
     PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 80 --seed 0 --person-shadow [--bare]
+    PYTHONPATH=. .venv/bin/python bench/field_photo_weeds.py --n 160 --seed 0 --fill 1.1
 
     A single case can be re-rendered with ``render(np.random.default_rng([seed, index]), kind)``.
 
@@ -2144,6 +2145,18 @@ def roi_near(seed: int, i: int, truth: np.ndarray, S: float) -> tuple:
     return ((float(truth[0] + off[0]), float(truth[1] + off[1])), (1.3 * S, 1.3 * S), 0.0)
 
 
+def fill_crop(img: np.ndarray, truth: np.ndarray, S: float, k: float, rng: np.random.Generator,
+              off: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """The photo cropped to a square of k·S (clipped to the frame) round a point up to `off`·S from the
+    crown along each axis, and the crown in the crop (--fill: close-ups where the plant fills the frame)."""
+    c = truth + rng.uniform(-off, off, 2) * S
+    h = 0.5 * k * S
+    H, W = img.shape[:2]
+    x0, y0 = int(max(0, c[0] - h)), int(max(0, c[1] - h))
+    x1, y1 = int(min(W, c[0] + h)), int(min(H, c[1] + h))
+    return np.ascontiguousarray(img[y0:y1, x0:x1]), truth - np.array([x0, y0], float)
+
+
 def draw_fail(img: np.ndarray, truth: np.ndarray, pix: tuple[float, float] | None, S: float,
               roi: tuple | None) -> np.ndarray:
     out = img.copy()
@@ -2174,7 +2187,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="every photo in sun with the photographer's shadow in it (15 %% of sunny ones otherwise)")
     ap.add_argument("--bare", action="store_true",
                     help="no weeds drawn: report how many photos get 'no_plant' (and where the others point)")
+    ap.add_argument("--fill", type=float, default=0.0, metavar="K",
+                    help="crop each photo to a square of K·S round a point within 0.1 S of the crown before "
+                         "detection (K ≈ 1: the plant fills the frame; K < 1: its leaves are cut by the border)")
     args = ap.parse_args(argv)
+    if args.fill < 0 or args.fill != args.fill or (args.fill and (args.roi or args.bare)):
+        ap.error("--fill takes K > 0 and goes without --roi and --bare")
     cv2.setNumThreads(1)
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from capm_field.detector import detect_centre  # noqa: E402 - after the path tweak
@@ -2195,6 +2213,8 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         img, truth, S, notes = render(rng, kind, args.person_shadow, args.bare)
         t_render = time.perf_counter() - t0
+        if args.fill:
+            img, truth = fill_crop(img, truth, S, args.fill, np.random.default_rng([args.seed, i, 2]))
         roi = roi_near(args.seed, i, truth, S) if args.roi else None
         dbg: dict = {}
         t1 = time.perf_counter()
@@ -2213,7 +2233,7 @@ def main(argv: list[str] | None = None) -> int:
             cv2.imwrite(str(fail_dir / f"{args.seed}_{i}_{kind}.png"), draw_fail(img, truth, pix, S, roi))
 
     print(f"field_photo_weeds: n={args.n} seed={args.seed} roi={'yes' if args.roi else 'no'}"
-          + (" person_shadow" if args.person_shadow else "") + (" bare" if args.bare else ""))
+          + (f" fill={args.fill:g}" if args.fill else "") + (" person_shadow" if args.person_shadow else "") + (" bare" if args.bare else ""))
     if args.bare:  # no weed: every answer but "no_plant" is a false plant
         answered = [r for r in rows if r["reason"] != "no_plant"]
         print(f"no_plant {len(rows) - len(answered)} of {len(rows)} ({pct(1 - len(answered) / len(rows))}); "
