@@ -2191,8 +2191,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="crop each photo to a square of K·S round a point within 0.1 S of the crown before "
                          "detection (K ≈ 1: the plant fills the frame; K < 1: its leaves are cut by the border)")
     args = ap.parse_args(argv)
-    if args.fill < 0 or args.fill != args.fill or (args.fill and (args.roi or args.bare)):
-        ap.error("--fill takes K > 0 and goes without --roi and --bare")
+    if not (args.fill == 0 or 0 < args.fill < math.inf) or (args.fill and (args.roi or args.bare)):
+        ap.error("--fill takes a finite K > 0 and goes without --roi and --bare")
     cv2.setNumThreads(1)
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from capm_field.detector import detect_centre  # noqa: E402 - after the path tweak
@@ -2233,7 +2233,8 @@ def main(argv: list[str] | None = None) -> int:
             cv2.imwrite(str(fail_dir / f"{args.seed}_{i}_{kind}.png"), draw_fail(img, truth, pix, S, roi))
 
     print(f"field_photo_weeds: n={args.n} seed={args.seed} roi={'yes' if args.roi else 'no'}"
-          + (f" fill={args.fill:g}" if args.fill else "") + (" person_shadow" if args.person_shadow else "") + (" bare" if args.bare else ""))
+          + (f" fill={args.fill:g}" if args.fill else "") + (" person_shadow" if args.person_shadow else "")
+          + (" bare" if args.bare else ""))
     if args.bare:  # no weed: every answer but "no_plant" is a false plant
         answered = [r for r in rows if r["reason"] != "no_plant"]
         print(f"no_plant {len(rows) - len(answered)} of {len(rows)} ({pct(1 - len(answered) / len(rows))}); "

@@ -1784,10 +1784,12 @@ def test_a_plant_filling_the_frame_is_read(i: int) -> None:
     fpw = field_photos()
     img, truth, S, _ = fpw.render(np.random.default_rng([0, i]), fpw.KINDS[i % len(fpw.KINDS)])
     rng = np.random.default_rng([0, i, 3])
-    while True:  # a crop centre 0.2–0.3 S from the crown
+    for _ in range(50):  # a crop whose centre is 0.2–0.3 S from the crown
         crop, t = fpw.fill_crop(img, truth, S, 1.1, rng, off=0.3)
         if 0.2 * S <= math.hypot(t[0] - (crop.shape[1] - 1) / 2, t[1] - (crop.shape[0] - 1) / 2) <= 0.3 * S:
             break
+    else:
+        pytest.fail("no crop with its centre 0.2–0.3 S from the crown")
     assert max(crop.shape[:2]) <= 1.1 * S + 1 < min(img.shape[:2])  # a crop, not the photo
     det = detect_centre(crop)
     assert crown_off(det, t, S) < 0.12, det
