@@ -1,0 +1,69 @@
+"""The second look's index, CIELAB −a*/100 (`capm_field.vegetation.neg_a_star`), against CIE's
+definition: published sRGB → L*a*b* values, and a plain float64 transcription of the formulas."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from capm_field.vegetation import neg_a_star, vegetation_index
+
+
+def _a_star_reference(rgb: np.ndarray) -> np.ndarray:
+    """a* of sRGB values on 0–1 (D65), term by term as IEC 61966-2-1 and CIE 15 write them."""
+    c = np.clip(np.asarray(rgb, np.float64), 0.0, 1.0)
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    r, g, b = lin[..., 0], lin[..., 1], lin[..., 2]
+    x = (0.412453 * r + 0.357580 * g + 0.180423 * b) / 0.950456
+    y = 0.212671 * r + 0.715160 * g + 0.072169 * b
+
+    def f(t):
+        return np.where(t > (6 / 29) ** 3, np.cbrt(t), t / (3 * (6 / 29) ** 2) + 4 / 29)
+
+    return 500.0 * (f(x) - f(y))
+
+
+@pytest.mark.parametrize("rgb, a_star", [
+    ((0, 255, 0), -86.18),  # sRGB primaries and secondaries (published D65 values)
+    ((255, 0, 0), 80.09),
+    ((0, 0, 255), 79.19),
+    ((255, 255, 0), -21.55),
+    ((255, 0, 255), 98.23),
+    ((128, 128, 128), 0.0),
+    ((0, 0, 0), 0.0),
+])
+def test_published_colours(rgb, a_star) -> None:
+    bgr = np.array(rgb[::-1], np.uint8).reshape(1, 1, 3)
+    got = float(neg_a_star(bgr, np.ones(3))[0, 0])
+    assert got == pytest.approx(-a_star / 100.0, abs=0.002)
+    assert float(vegetation_index(bgr, gains=np.ones(3, np.float32), lab=True)[0, 0]) == got
+
+
+@settings(max_examples=60, deadline=None)
+@given(hnp.arrays(np.uint8, (7, 9, 3)), st.tuples(*[st.floats(0.5, 2.0)] * 3))
+def test_tables_match_the_formulas(bgr, gains) -> None:
+    """The 8-bit path (per-channel tables, in-place cube roots, CIE's linear branch for dark colours)
+    and the float path give CIE's a* of the white-balanced colour, clipped to white."""
+    g = np.array(gains)
+    want = -_a_star_reference(bgr[..., ::-1].astype(np.float64) * g[::-1] / 255.0) / 100.0
+    got8 = neg_a_star(bgr, g)
+    gotf = neg_a_star(bgr.astype(np.float32), g)
+    assert got8.dtype == np.float32 and got8.shape == bgr.shape[:2]
+    np.testing.assert_allclose(got8, want, atol=2e-5)
+    np.testing.assert_allclose(gotf, want, atol=2e-5)
+
+
+def test_dark_colours_take_the_linear_branch() -> None:
+    """Below (6/29)³ in X/Xn or Y, f is linear: a cube root there would put a dark green shadow far
+    from its lit colour's a*."""
+    bgr = np.array([[[0, 6, 0], [2, 9, 1], [0, 0, 7]]], np.uint8)
+    want = -_a_star_reference(bgr[..., ::-1] / 255.0) / 100.0
+    got = neg_a_star(bgr, np.ones(3))
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    cube = lambda t: np.cbrt(t)  # noqa: E731  (what a cube root alone would give for the first pixel)
+    y = 0.715160 * (6 / 255 / 12.92)
+    x = 0.357580 * (6 / 255 / 12.92) / 0.950456
+    assert abs(float(got[0, 0]) - (-5.0 * (cube(x) - cube(y)))) > 0.01
