@@ -208,6 +208,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     choice = choose(img, win, vivid, debug, first)
     return choice if isinstance(choice, Detection) else _locate(img, win, choice, debug)
 
+
 def _grid_box(mask: np.ndarray) -> tuple[int, int, int, int]:
     """(x, y, w, h) of a stage-1 grid mask's pixels: OpenCV's bounding box of the 0/1 image (the
     extremes of np.nonzero, in ~1/20 of its time on the stage-1 grid)."""
@@ -285,6 +286,7 @@ def _locate(img: np.ndarray, win: SearchWindow, choice: Choice, debug: dict | No
     if runner > AMBIGUOUS:
         return Detection(pix, float(np.clip(conf, 0, 0.3)), "ambiguous")
     return Detection(pix, float(np.clip(conf, 0.0, 1.0)))
+
 
 MERGE_GAP = 0.5  # ... unless the contenders lie within this × the union's diameter: one plant
 # (seed 1 case 207: a clover in two halves 0.38 diameters apart; 0.7 joined a third plant)
