@@ -1,7 +1,7 @@
 """The search region of the weed-centre detector: the projected TROI R^TROI_I as an image conic.
 
 `Roi` (conic, optional pixel → ground homography in TROI radii), `roi_from_troi` (from the camera
-pose, X_w and r_w), `as_roi` (a Roi from what callers pass: a Roi, a 3×3 conic, an OpenCV ellipse)
+pose, X_w and r_w), `as_roi` (a Roi from what callers pass: a Roi, a 3×3 conic, an OpenCV ellipse, a mask)
 and `roi_mask` (the grown ellipse rasterised on a detector grid).
 """
 
@@ -74,6 +74,31 @@ class Roi:
         C[2, 2] = c @ M @ c - 1
         return cls(C)
 
+    @classmethod
+    def from_mask(cls, mask: np.ndarray) -> "Roi":
+        """The ellipse with the centroid and second moments of a region mask (H×W or H×W×1, non-zero
+        inside; e.g. the TROI disc rasterised by the caller): a filled ellipse gives itself back, any
+        other region its equal-moment ellipse. Semi-axis 2·√(λ − 1/12) along each eigenvector of the
+        pixels' covariance (λ: its eigenvalue; 1/12: a pixel's own spread). Raises ValueError for an
+        empty or line-like mask, or one with NaN."""
+        m = np.asarray(mask)
+        if m.ndim == 3 and m.shape[2] == 1:
+            m = m[:, :, 0]
+        if m.ndim != 2 or m.dtype.kind not in "biuf":
+            raise ValueError("a mask ROI is an H×W array of numbers")
+        if m.dtype.kind == "f" and not np.all(np.isfinite(m)):
+            raise ValueError("mask has NaN or infinite values")
+        mo = cv2.moments(np.ascontiguousarray(m != 0).view(np.uint8), binaryImage=True)
+        if mo["m00"] < 3:
+            raise ValueError("mask is empty")
+        cov = np.array([[mo["mu20"], mo["mu11"]], [mo["mu11"], mo["mu02"]]]) / mo["m00"]
+        evals, evecs = np.linalg.eigh(cov)
+        evals = evals - 1 / 12
+        if not np.all(evals > 0.25):  # a semi-axis under 1 px: a line of pixels, no region
+            raise ValueError("mask is a line, not a region")
+        ang = math.degrees(math.atan2(evecs[1, 0], evecs[0, 0]))
+        return cls.from_ellipse((mo["m10"] / mo["m00"], mo["m01"] / mo["m00"]), tuple(2 * np.sqrt(evals)), ang)
+
     def params(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(centre (2,), semi-axes (2,), angle of the first axis in degrees)."""
         return self._params
@@ -125,7 +150,7 @@ class Roi:
         return C[0, 0] * u * u + 2 * C[0, 1] * u * v + C[1, 1] * v * v + 2 * (C[0, 2] * u + C[1, 2] * v) + C[2, 2] <= 0
 
 
-RoiLike = Union[Roi, np.ndarray, tuple, None]
+RoiLike = Union[Roi, np.ndarray, tuple, None]  # np.ndarray: a 3×3 conic or an H×W mask
 
 
 def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, radius: float) -> Roi:
@@ -143,13 +168,20 @@ def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, rad
     return Roi.from_conic(C, ground)
 
 
-def as_roi(roi: RoiLike) -> Roi | None:
-    """A `Roi` from a Roi, a 3×3 conic (array or nested lists) or an OpenCV ellipse ((cu, cv),
-    (width, height), angle in degrees); None stays None. Raises ValueError if it is not an ellipse."""
+def as_roi(roi: RoiLike, image_shape: tuple[int, ...] | None = None) -> Roi | None:
+    """A `Roi` from a Roi, a 3×3 conic (array or nested lists), an OpenCV ellipse ((cu, cv),
+    (width, height), angle in degrees) or a mask of the image's size (`image_shape` (H, W),
+    non-zero inside: `Roi.from_mask`; a mask covering the whole image is no ROI); None stays None.
+    Raises ValueError if it is none of these."""
     if roi is None or isinstance(roi, Roi):
         return roi
     if isinstance(roi, np.ndarray) and roi.shape == (3, 3):
         return Roi.from_conic(roi)
+    if isinstance(roi, np.ndarray) and roi.ndim in (2, 3):
+        if image_shape is None or roi.shape[:2] != tuple(image_shape[:2]):
+            raise ValueError(f"a mask ROI must be the image's size: {roi.shape[:2]} against {image_shape}")
+        r = Roi.from_mask(roi)  # validates it
+        return None if np.count_nonzero(roi) == roi.shape[0] * roi.shape[1] else r
     if isinstance(roi, (list, tuple)) and len(roi) == 3 and all(isinstance(r, (list, tuple, np.ndarray)) and len(r) == 3 for r in roi):
         return Roi.from_conic(np.asarray(roi, float))  # a conic as nested lists
     (cu, cv_), (w, h), ang = roi

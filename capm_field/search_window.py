@@ -57,7 +57,7 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     if H < 16 or W < 16:
         return bad
     try:
-        roi = as_roi(roi_in)
+        roi = as_roi(roi_in, (H, W))
         if roi is not None:
             c, ax, ang = roi.params()  # raises for a conic without interior
             # an ellipse holding all four corners holds the whole (convex) frame: no ROI then
