@@ -1,7 +1,7 @@
 """The search region of the weed-centre detector: the projected TROI R^TROI_I as an image conic.
 
 `Roi` (conic, optional pixel → ground homography in TROI radii), `roi_from_troi` (from the camera
-pose, X_w and r_w), `as_roi` (a Roi from what callers pass: a Roi, a 3×3 conic, an OpenCV ellipse, a mask)
+pose, X_w and r_w), `as_roi` (a Roi from what callers pass: a Roi, a 3×3 conic, an OpenCV ellipse, a circle, a mask)
 and `roi_mask` (the grown ellipse rasterised on a detector grid).
 """
 
@@ -170,7 +170,7 @@ def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, rad
 
 def as_roi(roi: RoiLike, image_shape: tuple[int, ...] | None = None) -> Roi | None:
     """A `Roi` from a Roi, a 3×3 conic (array or nested lists), an OpenCV ellipse ((cu, cv),
-    (width, height), angle in degrees) or a mask of the image's size (`image_shape` (H, W),
+    (width, height), angle in degrees), a circle ((cu, cv), radius) or (cu, cv, radius), or a mask of the image's size (`image_shape` (H, W),
     non-zero inside: `Roi.from_mask`; a mask covering the whole image is no ROI); None stays None.
     Raises ValueError if it is none of these."""
     if roi is None or isinstance(roi, Roi):
@@ -184,6 +184,12 @@ def as_roi(roi: RoiLike, image_shape: tuple[int, ...] | None = None) -> Roi | No
         return None if np.count_nonzero(roi) == roi.shape[0] * roi.shape[1] else r
     if isinstance(roi, (list, tuple)) and len(roi) == 3 and all(isinstance(r, (list, tuple, np.ndarray)) and len(r) == 3 for r in roi):
         return Roi.from_conic(np.asarray(roi, float))  # a conic as nested lists
+    if isinstance(roi, (list, tuple, np.ndarray)) and len(roi) in (2, 3) and np.ndim(roi[-1]) == 0 and (
+            len(roi) == 3 and all(np.ndim(v) == 0 for v in roi) or len(roi) == 2 and np.shape(roi[0]) == (2,)):
+        # a circle: (cu, cv, radius) as from cv2.HoughCircles, or ((cu, cv), radius) as from
+        # cv2.minEnclosingCircle
+        cu, cv_, r = (*roi[0], roi[1]) if len(roi) == 2 else roi
+        return Roi.from_ellipse((float(cu), float(cv_)), (float(r), float(r)))
     (cu, cv_), (w, h), ang = roi
     return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
 

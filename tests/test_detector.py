@@ -861,6 +861,18 @@ def test_mask_roi_is_the_ellipse_it_holds(cu, cv_, a, ratio, ang) -> None:
         assert d < 4, (ang2, ang)
 
 
+def test_circle_roi_forms_are_the_ellipse() -> None:
+    """A circle ROI as OpenCV gives one, ((cu, cv), r) or (cu, cv, r), is that circle's ellipse."""
+    img = cv2.imread(str(FIX / "rosette_vga.jpg"))
+    want = detect_centre(img, ((376.0, 195.0), (300.0, 300.0), 0.0))
+    assert want.reason is None
+    for roi in (((376.0, 195.0), 150.0), (376.0, 195.0, 150.0), np.array([376.0, 195.0, 150.0]), [[376, 195], 150]):
+        assert np.array_equal(as_roi(roi).conic, Roi.from_ellipse((376.0, 195.0), (150.0, 150.0)).conic), roi
+        assert detect_centre(img, roi) == want, roi
+    for bad in (((376.0, 195.0), -1.0), (376.0, 195.0), (376.0, 195.0, 150.0, 1.0), ((1.0, 2.0, 3.0), 4.0)):
+        assert detect_centre(img, bad).reason == "bad_image", bad
+
+
 def test_mask_roi_is_answered_like_its_ellipse() -> None:
     """A mask of the ROI (a foreign caller's rasterised TROI) is answered like its ellipse; a mask of
     the whole image is no ROI; a mask of another size, empty, a line or NaN is bad input."""
