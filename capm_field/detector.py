@@ -58,8 +58,9 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
     """Find the biological centre of the main plant in a BGR uint8 image (never raises).
 
     roi: None (whole image), a `Roi`, a 3×3 image conic (pᵀCp ≤ 0 inside), an OpenCV-style
-    ellipse ((cu, cv), (width, height), angle_deg), a circle ((cu, cv), r) or (cu, cv, r), or an H×W mask of the region (non-zero inside;
-    its equal-moment ellipse is used, `Roi.from_mask`). A malformed roi gives "bad_image".
+    ellipse ((cu, cv), (width, height), angle_deg), a circle ((cu, cv), r) or (cu, cv, r), or an
+    H×W mask of the region (non-zero inside; its equal-moment ellipse is used, `Roi.from_mask`).
+    A malformed roi gives "bad_image".
     """
     try:
         win = search_window(image_bgr, roi)

@@ -1,8 +1,8 @@
 """The search region of the weed-centre detector: the projected TROI R^TROI_I as an image conic.
 
 `Roi` (conic, optional pixel → ground homography in TROI radii), `roi_from_troi` (from the camera
-pose, X_w and r_w), `as_roi` (a Roi from what callers pass: a Roi, a 3×3 conic, an OpenCV ellipse, a circle, a mask)
-and `roi_mask` (the grown ellipse rasterised on a detector grid).
+pose, X_w and r_w), `as_roi` (a Roi from what callers pass: a Roi, a 3×3 conic, an OpenCV ellipse,
+a circle, a mask) and `roi_mask` (the grown ellipse rasterised on a detector grid).
 """
 
 from __future__ import annotations
@@ -170,9 +170,9 @@ def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, rad
 
 def as_roi(roi: RoiLike, image_shape: tuple[int, ...] | None = None) -> Roi | None:
     """A `Roi` from a Roi, a 3×3 conic (array or nested lists), an OpenCV ellipse ((cu, cv),
-    (width, height), angle in degrees), a circle ((cu, cv), radius) or (cu, cv, radius), or a mask of the image's size (`image_shape` (H, W),
-    non-zero inside: `Roi.from_mask`; a mask covering the whole image is no ROI); None stays None.
-    Raises ValueError if it is none of these."""
+    (width, height), angle in degrees), a circle ((cu, cv), radius) or (cu, cv, radius), or a
+    mask of the image's size (`image_shape` (H, W), non-zero inside: `Roi.from_mask`; a mask
+    covering the whole image is no ROI); None stays None. Raises ValueError if it is none of these."""
     if roi is None or isinstance(roi, Roi):
         return roi
     if isinstance(roi, np.ndarray) and roi.shape == (3, 3):
