@@ -184,14 +184,24 @@ def as_roi(roi: RoiLike, image_shape: tuple[int, ...] | None = None) -> Roi | No
         return None if np.count_nonzero(roi) == roi.shape[0] * roi.shape[1] else r
     if isinstance(roi, (list, tuple)) and len(roi) == 3 and all(isinstance(r, (list, tuple, np.ndarray)) and len(r) == 3 for r in roi):
         return Roi.from_conic(np.asarray(roi, float))  # a conic as nested lists
-    if isinstance(roi, (list, tuple, np.ndarray)) and len(roi) in (2, 3) and np.ndim(roi[-1]) == 0 and (
-            len(roi) == 3 and all(np.ndim(v) == 0 for v in roi) or len(roi) == 2 and np.shape(roi[0]) == (2,)):
-        # a circle: (cu, cv, radius) as from cv2.HoughCircles, or ((cu, cv), radius) as from
-        # cv2.minEnclosingCircle
-        cu, cv_, r = (*roi[0], roi[1]) if len(roi) == 2 else roi
+    circle = _circle(roi)
+    if circle is not None:
+        cu, cv_, r = circle
         return Roi.from_ellipse((float(cu), float(cv_)), (float(r), float(r)))
     (cu, cv_), (w, h), ang = roi
     return Roi.from_ellipse((float(cu), float(cv_)), (float(w) / 2, float(h) / 2), float(ang))
+
+
+def _circle(roi) -> tuple | None:
+    """(cu, cv, radius) if `roi` is a circle as OpenCV gives one: (cu, cv, radius) from
+    cv2.HoughCircles, or ((cu, cv), radius) from cv2.minEnclosingCircle; else None."""
+    if not isinstance(roi, (list, tuple, np.ndarray)) or (isinstance(roi, np.ndarray) and roi.ndim != 1):
+        return None
+    if len(roi) == 3 and all(np.ndim(v) == 0 for v in roi):
+        return tuple(roi)
+    if len(roi) == 2 and np.shape(roi[0]) == (2,) and np.ndim(roi[1]) == 0:
+        return (*roi[0], roi[1])
+    return None
 
 
 def roi_mask(roi: Roi, shape: tuple[int, int], x0: float, y0: float, sx: float, sy: float) -> np.ndarray:
