@@ -802,6 +802,33 @@ def test_expected_bad_input_is_not_logged_as_a_failure(caplog) -> None:
     assert len(caplog.records) == 1 and caplog.records[0].exc_info is not None
 
 
+def test_detection_holds_blas_to_one_thread_and_restores_it(monkeypatch) -> None:
+    """The detector's budget is one core: during a detection every loaded BLAS library runs one
+    thread (OpenBLAS would split the larger products between threads), and the process's own
+    setting (two threads here) is back afterwards, also when the detection fails inside."""
+    from threadpoolctl import ThreadpoolController, threadpool_limits
+
+    import capm_field.detector as det_mod
+
+    seen: list[list[int]] = []
+    orig = det_mod.search_window
+
+    def spy(*a, **k):
+        seen.append([lib["num_threads"] for lib in ThreadpoolController().select(user_api="blas").info()])
+        return orig(*a, **k)
+
+    case = make_case(0, 1, CAM, TaskConfig().delta, False)
+    img = case.scene.render(case.T, CAM)
+    monkeypatch.setattr(det_mod, "search_window", spy)
+    with threadpool_limits(2, user_api="blas"):
+        assert detect_centre(img).reason is None
+        monkeypatch.setattr(det_mod, "_looks", lambda *a, **k: 1 / 0)
+        assert detect_centre(img).reason == "bad_image"
+        after = [lib["num_threads"] for lib in ThreadpoolController().select(user_api="blas").info()]
+    assert len(seen) == 2 and all(n == 1 for calls in seen for n in calls) and seen[0], seen
+    assert after and all(n == 2 for n in after), after
+
+
 def test_bad_roi_never_raises() -> None:
     img = cv2.imread(str(FIX / "rosette_vga.jpg"))  # a plant: only the roi can make it bad_image
     assert detect_centre(img).reason is None
