@@ -25,7 +25,8 @@ VERSION = 1
 MAX_PAYLOAD = 4096  # bytes; anything larger is malformed (bounds decoding work on hostile input)
 GOAL_EXTENT_M = FIELD_EXTENT_M  # |x|, |y| of a Move goal (field-frame metres, as mission files): beyond it, a unit error
 
-_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_ID_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")  # whole string (fullmatch: `$` would also take a final newline)
+TEXT_MAX = 256  # characters of a text field; longer is malformed (bounds what a peer can make us log or echo)
 
 # Query keys (relative to the body prefix) and the request kind each one carries.
 QUERIES = {
@@ -48,8 +49,8 @@ class ProtocolError(ValueError):
 
 
 def check_id(kind: str, value: str) -> str:
-    if not isinstance(value, str) or not _ID_RE.match(value):
-        raise ValueError(f"{kind} must match [A-Za-z0-9_-]{{1,64}}, got {value!r}")
+    if not isinstance(value, str) or not _ID_RE.fullmatch(value):
+        raise ValueError(f"{kind} must match [A-Za-z0-9_-]{{1,64}}, got {shown(value)}")
     return value
 
 
@@ -86,7 +87,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, bool]]] = {
     "power": {"client": ("id", True), "lease": ("str", True), "on": ("bool", True)},
     "lease_acquire": {"client": ("id", True), "lease": ("str?", False)},
     "lease_release": {"client": ("id", True), "lease": ("str", True)},
-    "checkin": {"client": ("id", True), "seq": ("int", True), "engage": ("bool", False)},
+    "checkin": {"client": ("id", True), "seq": ("int", True), "engage": ("bool?", False), "lease": ("str?", False)},
     # replies
     "ack": {"ok": ("bool", True), "cmd_id": ("int", False), "lease": ("str", False), "ttl_ns": ("int", False),
             "timeout_ns": ("int", False), "estop": ("bool", False)},
@@ -101,14 +102,33 @@ SCHEMAS: dict[str, dict[str, tuple[str, bool]]] = {
 }
 
 
+def shown(value: Any, limit: int = 60) -> str:
+    """A peer's value for an error detail: its repr cut to `limit` characters (a CBOR bignum of
+    thousands of digits has no repr within Python's int-to-text limit: its size is shown)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
+        return f"<an integer of {value.bit_length()} bits>"
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 - any value a decoder can make must be describable
+        return f"<a {type(value).__name__}>"
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def one_line(detail: str, limit: int = TEXT_MAX) -> str:
+    """An Error map's `detail`: one line of at most `limit` characters, whatever text (a peer's
+    key, ids) went into it."""
+    text = " ".join(str(detail).split())
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
 def _check(value: Any, typ: str, name: str) -> None:
     if typ.endswith("?"):
         if value is None:
             return
         typ = typ[:-1]
     ok = {
-        "str": lambda v: isinstance(v, str) and len(v) <= 256,
-        "id": lambda v: isinstance(v, str) and bool(_ID_RE.match(v)),
+        "str": lambda v: isinstance(v, str) and len(v) <= TEXT_MAX,
+        "id": lambda v: isinstance(v, str) and bool(_ID_RE.fullmatch(v)),
         "int": lambda v: isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**64,
         "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
         "coord": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= GOAL_EXTENT_M,
@@ -120,7 +140,7 @@ def _check(value: Any, typ: str, name: str) -> None:
     }[typ](value)
     if not ok:
         need = f"a number within ±{GOAL_EXTENT_M:.0f} m" if typ == "coord" else typ
-        raise ProtocolError("malformed", f"field {name!r} must be {need}, got {value!r:.60}")
+        raise ProtocolError("malformed", f"field {name!r} must be {need}, got {shown(value)}")
     if typ in ("pose", "goal"):
         _check_map(value, _POSE if typ == "pose" else _GOAL, name + ".")
     elif typ == "cmd":
@@ -162,7 +182,7 @@ def decode(kind: str, raw: bytes | None) -> dict[str, Any]:
     if not isinstance(v, int) or isinstance(v, bool):
         raise ProtocolError("malformed", "missing integer field 'v' (protocol version)")
     if v != VERSION:
-        raise ProtocolError("bad_version", f"protocol version {v} not supported (this side speaks {VERSION})")
+        raise ProtocolError("bad_version", f"protocol version {shown(v)} not supported (this side speaks {VERSION})")
     _check_map(msg, SCHEMAS[kind])
     return msg
 

@@ -27,6 +27,7 @@ from drivers.body_protocol import (
     decode,
     encode,
     link_security,
+    one_line,
     pose_map,
 )
 from drivers.interfaces import EStopActive
@@ -139,6 +140,7 @@ class BodyServer:
         self._stop = threading.Event()
         self._next_cmd = 1
         self._lease: tuple[str, str, int] | None = None  # (client, token, expires monotonic ns)
+        self._holder_checks_in_with_token = False  # the holder has sent its token in a CheckIn under this lease
         self._checkins: dict[str, int] = {}  # client -> monotonic ns of its last check-in
         self._engaged_by: set[str] = set()  # clients whose CheckIn engage=true holds the E-stop (latched)
         self._live_clients: set[str] = set()  # clients whose P/client/<client> token is present
@@ -250,16 +252,22 @@ class BodyServer:
             last = max(self._checkins.values(), default=None)
         return last is not None and now - last <= self.config.estop_timeout_s * 1e9
 
+    def _enforce_deadlines(self, now: int) -> None:
+        """The lease's expiry and the E-stop keep-alive's timeout, at every loop tick and before any
+        query is answered (a query arriving between ticks must not find an expired lease or a lapsed
+        keep-alive still honoured). Under the lock."""
+        if self._lease is not None and now > self._lease[2]:
+            self._stats["lease_expired"] += 1
+            self._drop_lease("lease_expired")
+        if self._keepalive_ok and not self._keepalive_fresh(now):
+            self._keepalive_ok = False
+            self._stats["estop_timeouts"] += 1
+            self.backend.keepalive(False)
+
     def _tick(self) -> None:
         now = time.monotonic_ns()
         with self._lock:
-            if self._lease is not None and now > self._lease[2]:
-                self._stats["lease_expired"] += 1
-                self._drop_lease("lease_expired")
-            if self._keepalive_ok and not self._keepalive_fresh(now):
-                self._keepalive_ok = False
-                self._stats["estop_timeouts"] += 1
-                self.backend.keepalive(False)
+            self._enforce_deadlines(now)
             if len(self._checkins) > 64:  # stale ids no longer matter: bounded memory whatever ids clients send
                 old = now - 2 * self.config.estop_timeout_s * 1e9
                 self._checkins = {c: t for c, t in self._checkins.items() if t >= old}
@@ -292,6 +300,7 @@ class BodyServer:
     def _drop_lease(self, reason: str) -> None:
         # Losing the commander (lease expired, released or its session gone) stops the body.
         self._lease = None
+        self._holder_checks_in_with_token = False
         self.backend.stop(reason)
 
     # ---- queries -----------------------------------------------------------------------------
@@ -308,17 +317,27 @@ class BodyServer:
             msg = decode(kind, raw)
             with self._lock:
                 self._stats[f"q_{kind}"] += 1
+                self._enforce_deadlines(time.monotonic_ns())
                 reply = getattr(self, f"_do_{kind}")(msg)
             query.reply(key, encode("ack", {"ok": True, **reply}))
         except ProtocolError as e:
             with self._lock:
                 self._stats[e.tag] += 1
-            query.reply_err(encode("error", {"ok": False, "error": e.tag, "detail": e.detail}))
+            self._reply_error(query, e.tag, e.detail)
         except Exception as e:  # noqa: BLE001 - a backend failure must still answer the client
             log.exception("query %s failed", key)
             with self._lock:
                 self._stats["internal"] += 1
-            query.reply_err(encode("error", {"ok": False, "error": "internal", "detail": str(e)[:200]}))
+            self._reply_error(query, "internal", str(e))
+
+    @staticmethod
+    def _reply_error(query, tag: str, detail: str) -> None:
+        """The one reply of a refused query: an Error map whose detail (built from the peer's key,
+        ids, values) is cut to one line of ≤ TEXT_MAX characters, so the reply is always valid."""
+        try:
+            query.reply_err(encode("error", {"ok": False, "error": tag, "detail": one_line(detail)}))
+        except Exception:  # noqa: BLE001 - zenoh refusing the reply (session closing) must not kill its thread
+            log.exception("could not send the %s error reply", tag)
 
     def _require_lease(self, msg: dict) -> None:
         lease = self._lease
@@ -381,6 +400,8 @@ class BodyServer:
                 f"token it was granted; expires in {(lease[2] - now) * 1e-9:.1f} s unless refreshed)"
             )
         token = lease[1] if lease is not None else secrets.token_hex(8)
+        if lease is None:
+            self._holder_checks_in_with_token = False  # a new lease: its holder has not checked in with it yet
         self._lease = (msg["client"], token, now + ttl)
         if lease is None and msg["client"] not in self._live_clients:
             self._stats["lease_without_token"] += 1  # no P/client token: losing this commander is seen by the keep-alive only
@@ -391,16 +412,37 @@ class BodyServer:
         self._drop_lease("lease_released")
         return {}
 
+    def _holder_session(self, client: str, token: str | None) -> bool:
+        """Whether a CheckIn may count as `client`'s: any client's, except under the lease holder's id
+        (public in State.lease_holder), where it must carry the holder's token, or no token from a
+        holder that has never sent one in this lease (clients written before CheckIn's `lease`)."""
+        lease = self._lease
+        if lease is None or client != lease[0]:
+            return True
+        if token == lease[1]:
+            self._holder_checks_in_with_token = True
+            return True
+        return token is None and not self._holder_checks_in_with_token
+
     def _do_checkin(self, msg: dict) -> dict:
         now, client, engage = time.monotonic_ns(), msg["client"], msg.get("engage")
-        self._checkins[client] = now
         if engage is True:
             # a client asserts the E-stop (Spot's settle_then_cut): latched until every client that
-            # engaged it has sent engage=false (or its session is gone); plain check-ins keep it
+            # engaged it has sent engage=false (or its session is gone); plain check-ins keep it.
+            # Anybody may stop the body: applied before (and whatever) the session check below
             self._engaged_by.add(client)
             self._keepalive_ok = False
             self.backend.keepalive(False, "estop_engaged_by_client")
-        elif engage is False and self._engaged_by:
+        if not self._holder_session(client, msg.get("lease")):
+            # another session under the holder's id (a second process started with the same id):
+            # it must not keep a silent commander's keep-alive fresh, nor release its engage
+            self._stats["checkin_not_holder"] += 1
+            if engage is True:
+                return {"timeout_ns": int(self.config.estop_timeout_s * 1e9), "estop": self.backend.poll().estop}
+            raise ProtocolError("no_lease", f"CheckIn under the lease holder's id {client!r} without its lease token: "
+                                            "not counted for its E-stop keep-alive")
+        self._checkins[client] = now
+        if engage is False and self._engaged_by:
             self._engaged_by = {c for c in self._engaged_by if c != client and c in self._live_clients}
             if self._engaged_by:
                 raise ProtocolError("estop", f"the E-stop is also engaged by {', '.join(sorted(self._engaged_by))}, "

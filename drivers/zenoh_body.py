@@ -239,14 +239,12 @@ class ZenohBody(Body):
     def engage_estop(self, timeout: float = 0.5) -> None:
         """Assert the E-stop now (Spot's settle_then_cut). It stays engaged, through this client's
         own periodic check-ins, until `release_estop()` (or this session ends)."""
-        self._query(self.keys.estop_checkin, "checkin",
-                    {"client": self.client_id, "seq": self._next_seq(), "engage": True}, time.monotonic() + timeout)
+        self._query(self.keys.estop_checkin, "checkin", self._checkin_msg(engage=True), time.monotonic() + timeout)
 
     def release_estop(self, timeout: float = 0.5) -> bool:
         """Release this client's engage; True when the body is free to move (no other engage,
         keep-alive fresh). Raises EStopActive while another open session's engage holds it."""
-        ack = self._query(self.keys.estop_checkin, "checkin",
-                          {"client": self.client_id, "seq": self._next_seq(), "engage": False}, time.monotonic() + timeout)
+        ack = self._query(self.keys.estop_checkin, "checkin", self._checkin_msg(engage=False), time.monotonic() + timeout)
         return not ack["estop"]
 
     def ping(self, timeout: float = 0.5) -> float:
@@ -349,8 +347,19 @@ class ZenohBody(Body):
         self._lease, self._lease_ttl_ns = ack["lease"], ack["ttl_ns"]
         self._lease_refreshed_ns = time.monotonic_ns()
 
+    def _checkin_msg(self, engage: bool | None = None) -> dict:
+        """A CheckIn, with the lease token while this client holds the lease (the robot side counts
+        check-ins under the holder's id only with it: another session with our id cannot keep our
+        keep-alive fresh)."""
+        msg: dict = {"client": self.client_id, "seq": self._next_seq()}
+        if engage is not None:
+            msg["engage"] = engage
+        if self._lease:
+            msg["lease"] = self._lease
+        return msg
+
     def _checkin(self, deadline: float) -> None:
-        ack = self._query(self.keys.estop_checkin, "checkin", {"client": self.client_id, "seq": self._next_seq()}, deadline)
+        ack = self._query(self.keys.estop_checkin, "checkin", self._checkin_msg(), deadline)
         # Spot's EstopKeepAlive checks in at a third of the timeout; a quarter leaves one more try.
         # (at least once a second: a robot side announcing an absurd timeout must not stop our check-ins)
         self._checkin_period_s = min(1.0, max(0.02, ack["timeout_ns"] * 1e-9 / 4))

@@ -129,6 +129,125 @@ def test_foreign_publisher_on_state_and_command_keys_changes_nothing(foreign_ses
     assert bench.sim.moves == 0
 
 
+def test_checkin_with_engage_null_is_a_keepalive(foreign_session):
+    """body-zenoh.md: `engage?` may be absent or null (keep-alive only); null was refused as malformed."""
+    bench, s, lease = foreign_session
+    ok, ack = ask(s, f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 99, "engage": None}))
+    assert ok and ack["ok"] is True and ack["estop"] is False
+
+
+def test_ids_with_a_trailing_newline_are_malformed(foreign_session):
+    """Identifiers are 1–64 characters of [A-Za-z0-9_-] and nothing else (a regex `$` also took
+    "fc\\n", which then held the lease under a key with a newline in it)."""
+    from drivers.body_protocol import Keys
+
+    bench, s, lease = foreign_session
+    for client in ("fc\n", "x" * 64 + "\n", "f c", ""):
+        ok, rep = ask(s, f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": client, "seq": 1}))
+        assert not ok and rep["error"] == "malformed", (client, rep)
+    with pytest.raises(ValueError):
+        Keys("spot\n")
+
+
+def test_every_refusal_is_one_valid_error_reply_whatever_the_peer_sent(foreign_session):
+    """Each query gets exactly one reply, also when the Error's detail would repeat a long key or
+    a CBOR bignum: the detail is cut to one line of ≤ 256 characters (an over-long detail failed the
+    robot side's own check while it answered, and the query got no reply at all)."""
+    from drivers.body_protocol import decode
+
+    bench, s, lease = foreign_session
+    cases = [
+        (f"{P}/cmd/" + "j" * 300, cbor2.dumps({"v": 1, "client": "fc"}), "foreign_key"),
+        (f"{P}/cmd/stop", cbor2.dumps({"v": 2**1000, "client": "fc"}), "bad_version"),
+        (f"{P}/cmd/stop", cbor2.dumps({"v": 2**15000, "client": "fc"}), "bad_version"),  # no decimal text in Python
+        (f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 2**15000}), "malformed"),
+        (f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 1, "lease": "L" * 300}), "malformed"),
+    ]
+    for key, payload, tag in cases:
+        replies = list(s.get(key, payload=payload, timeout=2.0))
+        assert len(replies) == 1 and replies[0].err is not None, (tag, replies)
+        err = decode("error", replies[0].err.payload.to_bytes())  # what our own client accepts
+        assert err["error"] == tag and len(err["detail"]) <= 256 and "\n" not in err["detail"], err
+    assert bench.server.stats.get("internal", 0) == 0
+
+
+def test_an_expired_lease_is_not_honoured_between_loop_ticks(foreign_session):
+    """The lease expires `ttl_ns` after its last refresh, whenever the loop next runs: a query is
+    checked against the clock itself (a Move just after expiry was acknowledged and started, and
+    another client's LeaseAcquire refused, until the next tick of the state loop)."""
+    bench, s, lease = foreign_session
+    srv = bench.server
+    srv._tick = lambda: None  # the loop's own sweep never comes: only the query path can expire it
+    with srv._lock:
+        srv._lease = (srv._lease[0], srv._lease[1], time.monotonic_ns() - 1)
+    ok, rep = ask(s, f"{P}/cmd/move", cbor2.dumps({"v": 1, "client": "fc", "lease": lease,
+                                                   "goal": {"x": 0.3, "y": 0, "yaw": 0}, "timeout_ns": 10**9}))
+    assert not ok and rep["error"] == "no_lease" and bench.sim.moves == 0
+    ok, ack = ask(s, f"{P}/lease/acquire", cbor2.dumps({"v": 1, "client": "other"}))
+    assert ok and srv.lease_holder == "other" and srv.stats["lease_expired"] == 1
+
+
+def test_another_session_under_the_holders_id_does_not_keep_its_keepalive():
+    """While a lease is held, only the holder's check-ins keep the E-stop released. The holder's id
+    is public (State.lease_holder): a second session checking in under it without the lease token
+    (a second process started with the same id) kept a silent commander's body walking."""
+    port = free_port()
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST) as bench:
+        a = zenoh.open(LinkConfig(connect=(f"tcp/127.0.0.1:{port}",)).zenoh_config())
+        b = zenoh.open(LinkConfig(connect=(f"tcp/127.0.0.1:{port}",)).zenoh_config())
+        stop = threading.Event()
+        try:
+            assert wait_for(lambda: len(list(a.liveliness().get(f"{P}/alive", timeout=0.5))) > 0)
+            tok = a.liveliness().declare_token(f"{P}/client/fc")
+            assert wait_for(lambda: "fc" in bench.server._live_clients)
+            ok, ack = ask(a, f"{P}/lease/acquire", cbor2.dumps({"v": 1, "client": "fc"}))
+            lease = ack["lease"]
+            ok, ack = ask(a, f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 0, "lease": lease}))
+            assert ok and ack["estop"] is False
+            refused: list[str] = []
+
+            def impostor() -> None:
+                seq = 0
+                while not stop.wait(0.2):
+                    seq += 1
+                    for r in b.get(f"{P}/estop/checkin", payload=cbor2.dumps({"v": 1, "client": "fc", "seq": seq}),
+                                   timeout=0.5):
+                        if r.err is not None:
+                            refused.append(cbor2.loads(r.err.payload.to_bytes())["error"])
+
+            def refresher() -> None:  # the commander keeps its lease, but stops checking in
+                while not stop.wait(0.4):
+                    list(a.get(f"{P}/lease/acquire", payload=cbor2.dumps({"v": 1, "client": "fc", "lease": lease}),
+                               timeout=0.5))
+
+            threads = [threading.Thread(target=f, daemon=True) for f in (impostor, refresher)]
+            for th in threads:
+                th.start()
+            ok, _ = ask(a, f"{P}/cmd/move", cbor2.dumps({"v": 1, "client": "fc", "lease": lease,
+                                                         "goal": {"x": 8.0, "y": 0, "yaw": 0}, "timeout_ns": 30 * 10**9}))
+            assert ok
+            assert wait_for(lambda: bench.sim.estop, 2.5), "the keep-alive should have lapsed ~1 s after the holder's check-in"
+            assert bench.server.stats["estop_timeouts"] >= 1 and not bench.sim.moving
+            assert refused and set(refused) == {"no_lease"}
+            # an engage from anybody still stops the body: it is applied even under a borrowed id
+            ok, ack = ask(b, f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 10**6, "engage": True}))
+            assert ok and "fc" in bench.server._engaged_by
+            # ... but only the holder's session, with its token, releases it
+            ok, rep = ask(b, f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 10**6 + 1, "engage": False}))
+            assert not ok and rep["error"] == "no_lease" and "fc" in bench.server._engaged_by
+            ok, ack = ask(a, f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 1, "engage": False,
+                                                                "lease": lease}))
+            assert ok and ack["estop"] is False
+            stop.set()
+            for th in threads:
+                th.join(1.0)
+            tok.undeclare()
+        finally:
+            stop.set()
+            a.close()
+            b.close()
+
+
 # ---- zenoh: a foreign (or broken) robot side, seen by our client --------------------------------
 class FakeRobot:
     """A robot side from the spec with switchable faults: what it publishes as State and what it
