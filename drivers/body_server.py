@@ -209,7 +209,8 @@ class BodyServer:
     @property
     def stats(self) -> dict[str, int]:
         """Counters: queries by kind, refusals by reason (malformed, bad_version, foreign_key,
-        no_lease, lease_refused, estop), estop_timeouts, lease_expired, state_published,
+        no_lease, lease_refused, estop), estop_timeouts, lease_expired, checkin_not_holder (check-ins
+        under the lease holder's id without its token), state_published,
         links_opened / links_closed / links_unnamed (zenoh links; a peer refused by TLS or
         user/password never opens one; one refused by the ACL opens one, its messages are dropped
         by zenoh before this code sees them)."""

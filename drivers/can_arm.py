@@ -9,6 +9,10 @@ halves are discarded.
 Outcomes: MoveResult(ok=False, reason) for motion failures (joint_limit, ik_failed, gateway
 fault codes), DriverTimeout when `timeout` runs out, LinkLost when the gateway heartbeat stops
 (or the bus fails); every failure path sends STOP (best effort) before returning or raising.
+Start-up: the constructor synchronises the ARM_CMD counter with NOPs (`sync_counter`, can.md
+"Host start-up"), so after a host restart the gateway accepts the first command (RESET_FAULT of
+the HOST_LOST it latched, ENABLE). The target stream needs no sync frames: its first set after a
+restart may be discarded (counter rule) and the stream goes on with the next.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from .can.codec import (
     database,
 )
 from .can.config import CanArmConfig
-from .can.link import CanLink, wait_for
+from .can.link import CanLink, sync_counter, wait_for
 from .interfaces import (
     Arm,
     ArmState,
@@ -74,6 +78,7 @@ class CanArm(Arm):
         self._state_ids = {db.get_message_by_name(n).frame_id for n in ("ARM_STATE_A", "ARM_STATE_B")}
         self._status: dict = {"Mode": 0, "Enabled": 0, "Moving": 0, "Stowed": 0, "FaultCode": 0, "RxRejected": 0}
         self._status_seen = False
+        self._status_n = 0  # ARM_STATUS frames received (start-up counter sync waits on it)
         self._closed = False
         self.last_stream = StreamStats()
         self.link = CanLink(
@@ -90,6 +95,10 @@ class CanArm(Arm):
         try:
             self.link.wait_peer(connect_timeout)
             self._wait(lambda: self._q is not None and self._status_seen, time.monotonic() + connect_timeout, "first arm state")
+            # host start-up procedure (can.md): a gateway that outlived a previous host expects that
+            # host's next ARM_CMD counter; NOPs bring it in step so the first command is accepted
+            self.sync_rounds = sync_counter(self._cv, self.link, "ARM_CMD", lambda: (self._status_n, self._status["RxRejected"]),
+                                            time.monotonic() + connect_timeout)
         except BaseException:
             self.link.close()
             raise
@@ -117,6 +126,7 @@ class CanArm(Arm):
             elif name == "ARM_STATUS":
                 self._status = {k: int(v) for k, v in sig.items()}
                 self._status_seen = True
+                self._status_n += 1
             self._cv.notify_all()
 
     # ---- helpers -----------------------------------------------------------------------------

@@ -11,6 +11,11 @@ A keep-alive gap, a rejected command frame or host loss makes the board shut the
 disarm itself ("trip"); `ignite()` never re-arms: it ends (flame off) with the trip event as
 reason (`keepalive_timeout`, `bad_frame`, `host_lost`; `disarmed` for anything else), and the
 caller must `arm()` again to burn.
+
+Start-up: the constructor waits for the board's heartbeat and status, then synchronises the
+IGN_CMD counter with NOPs (`sync_counter`, can.md "Host start-up"): a board that kept running
+while the host process restarted expects the old host's next counter and would otherwise reject
+the first command (e.g. ARM) and only resync on it.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from .can.codec import (
     NODE_HOST_IGN,
 )
 from .can.config import CanIgniterConfig
-from .can.link import CanLink, wait_for
+from .can.link import CanLink, sync_counter, wait_for
 from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult, credited_flame_s
 
 # board events that come with the board disarming itself (reported as ignite()'s reason)
@@ -43,6 +48,7 @@ class CanIgniter(Igniter):
         self._cv = threading.Condition()
         self._status: dict | None = None
         self._status_stamp = 0
+        self._status_n = 0  # IGN_STATUS frames received (start-up counter sync waits on it)
         self._closed = False
         self.keepalives_sent = 0
         self.last_keepalive_ns: int | None = None
@@ -61,6 +67,10 @@ class CanIgniter(Igniter):
         try:
             self.link.wait_peer(connect_timeout)
             self._wait(lambda: self._status is not None, time.monotonic() + connect_timeout, "first igniter status")
+            # host start-up procedure (can.md): a board that outlived a previous host expects that
+            # host's next counter; NOPs bring it in step so the first real command is accepted
+            self.sync_rounds = sync_counter(self._cv, self.link, "IGN_CMD", lambda: (self._status_n, self._status["RxRejected"]),
+                                            time.monotonic() + connect_timeout)
         except BaseException:
             self.link.close()
             raise
@@ -77,6 +87,7 @@ class CanIgniter(Igniter):
                 self.disarmed_by = None
             self._status = new
             self._status_stamp = time.monotonic_ns()
+            self._status_n += 1
             self._cv.notify_all()
 
     # ---- helpers -----------------------------------------------------------------------------

@@ -202,5 +202,44 @@ def wait_for(cv: threading.Condition, link: "CanLink", pred: Callable[[], bool],
             on_poll()
 
 
+SYNC_NOPS = 3  # NOPs per start-up synchronisation round (docs/protocols/can.md, "Host start-up")
+SYNC_ROUNDS = 3  # rounds before giving up (each: 3 NOPs, 2 status frames)
+
+
+def sync_counter(cv: threading.Condition, link: "CanLink", command: str, status: Callable[[], tuple[int, int]],
+                 deadline: float, rounds: int = SYNC_ROUNDS) -> int:
+    """Host start-up procedure (docs/protocols/can.md, "Host start-up"): bring the peer's counter
+    check of the command id `command` (IGN_CMD, ARM_CMD) in step with this sender, acting on nothing.
+
+    A restarted host's counter starts anywhere; the peer rejects the first frame that does not
+    follow its last accepted one and accepts the next (resync rule). One round sends SYNC_NOPS
+    NOPs (Command 0, no effect on either node) with consecutive counters, then waits for two
+    status frames received after the last one (the peer has processed them by the second). Under
+    the receiver rules at most the first of them can be rejected, so RxRejected rising by at most
+    1 over the round means the last ones were accepted: the peer is in step and the next command
+    is accepted. A larger rise (a NOP rejected for another reason, or other rejected traffic on
+    the bus) repeats the round. No real command is ever sent twice.
+
+    `status()` (called with `cv` held) returns (status frames received so far, the peer's
+    RxRejected in the latest one). Returns the rounds used; raises DriverTimeout if no round
+    confirms within `rounds` or by `deadline`, LinkLost if the link fails.
+    """
+    for k in range(1, rounds + 1):
+        with cv:
+            _, rej0 = status()
+        for _ in range(SYNC_NOPS):
+            if not link.send(link.encoder.encode(command, {"Command": 0})):
+                link.check()
+                raise LinkLost(f"cannot send {command}")
+        with cv:
+            n_sent = status()[0]
+        wait_for(cv, link, lambda: status()[0] >= n_sent + 2, deadline, f"status after the {command} counter sync")
+        with cv:
+            rose = (status()[1] - rej0) & 0xFF
+        if rose <= 1:
+            return k
+    raise DriverTimeout(f"{command} counter not confirmed in step after {rounds} rounds (peer RxRejected kept rising)")
+
+
 def heartbeat_id(node: int) -> int:
     return HEARTBEAT_BASE + node
