@@ -6,8 +6,10 @@ buses and cantools with the shipped DBC; no mocks."""
 from __future__ import annotations
 
 import random
+import re
 import threading
 import time
+from pathlib import Path
 
 import can
 import numpy as np
@@ -17,6 +19,7 @@ from capm_field.config import ArmConfig, RobotConfig
 from capm_field.robot_model import RobotModel
 from drivers.can.codec import (
     IGN_ARM,
+    PAIR_WINDOW_S,
     IGN_IGNITE,
     Encoder,
     Receiver,
@@ -65,6 +68,21 @@ def test_dbc_round_trip_every_message():
                 assert got[1][k] == pytest.approx(v, abs=m.get_signal_by_name(k).scale / 2 + 1e-12), (m.name, k)
         assert rx.stats.rejected_total == 0
     assert all(is_protected(m) for m in db.messages if not m.name.startswith("HB_"))
+
+
+def test_dbc_pair_window_comments_match_the_code():
+    """The DBC is the single source of truth (can.md): its comments on the joint-set halves must
+    state the pairing window the code applies (PAIR_WINDOW_S), and so must can.md."""
+    window_ms = round(PAIR_WINDOW_S * 1000)
+    db = database()
+    for name in ("ARM_TARGET_A", "ARM_TARGET_B", "ARM_STATE_A", "ARM_STATE_B"):
+        comment = db.get_message_by_name(name).comment or ""
+        stated = [int(v) for v in re.findall(r"within (\d+) ms", comment)]
+        assert stated and all(v == window_ms for v in stated), (name, comment, window_ms)
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocols" / "can.md").read_text()
+    section = doc[doc.index("### Joint sets"):]
+    section = section[:section.index("\n## ")]
+    assert [int(v) for v in re.findall(r"within (\d+) ms", section)] == [window_ms], section
 
 
 def _frame(enc: Encoder, counter: int | None = None) -> can.Message:
