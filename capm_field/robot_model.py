@@ -81,6 +81,10 @@ class RobotModel:
         lock = [full.getJointId(n) for n in self.cfg.arm.locked_joints if full.existJointName(n)]
         self.model = pin.buildReducedModel(full, lock, pin.neutral(full)) if lock else full
         if self.model.nq != 6:
+            unknown = [n for n in self.cfg.arm.locked_joints if not full.existJointName(n)]
+            if unknown:  # a misspelt joint left unlocked: name it, not the joint count it causes
+                raise UserError(f"robot.arm.locked_joints: no joint named {unknown[0][:80]!r} in {urdf.name} "
+                                f"(its joints: {', '.join(list(full.names)[1:])})"[:400])
             raise UserError(f"robot.arm.urdf: expected a 6-joint arm after locking {self.cfg.arm.locked_joints}, got nq={self.model.nq}")
         flange = self.cfg.arm.flange_frame
         if not self.model.existFrame(flange):

@@ -13,13 +13,14 @@ import csv
 import io
 import json
 import math
+import os
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from capm_field.config import RobotConfig, StrictNumbers, TaskConfig, not_bool
 from capm_field.errors import UserError
@@ -28,13 +29,15 @@ from capm_field.geometry import SE2
 from capm_field.keystates import TROI
 
 PLANNER_NAMES = ("a", "b", "c", "cstar", "field")
-MAX_MISSION_BYTES = 4 * 2**20
+MAX_MISSION_BYTES = 2**20  # 5000 listed TROIs take ~0.3 MiB; parsing 1 MiB takes ~1 s of CPU
 MAX_PRESCAN_BYTES = 16 * 2**20
 MAX_TROIS = 5000  # ~14 h of flaming at ~10 s a weed; ordering them alone takes ~9 s
 MAX_TIMEOUT_S = 3600.0
 # ids name log lines, summary keys and (escaped) Rerun paths: any printable text of 1–64 characters
 # (a prescan tool's "W 12" or "plot A/3" too), not starting or ending with a space
 TROI_ID_RE = re.compile(r"^(?=.{1,64}\Z)[^\x00-\x20\x7f-\x9f](?:[^\x00-\x1f\x7f-\x9f]*[^\x00-\x20\x7f-\x9f])?\Z")
+NAME_RE = re.compile(r"^(?=.{1,128}\Z)[^\x00-\x20\x7f-\x9f](?:[^\x00-\x1f\x7f-\x9f]*[^\x00-\x20\x7f-\x9f])?\Z")
+SHOWN = 80  # characters of a bad value quoted in an error line
 LEG_MARGIN = 0.8  # a leg of the visit may take at most this share of the body's move timeout
 
 
@@ -70,9 +73,17 @@ class Pose(_Strict):
         return SE2(self.x, self.y, self.yaw)
 
 
+def shown(v: Any) -> str:
+    """repr of a value for an error line, cut to about SHOWN characters (a 200 kB value was echoed whole)."""
+    if isinstance(v, str) and len(v) > SHOWN:
+        return f"{v[:SHOWN]!r}…"
+    r = repr(v)
+    return r if len(r) <= SHOWN + 2 else r[:SHOWN] + "…"
+
+
 def _troi_id(v: str | None) -> str | None:
     if v is not None and v != "" and not TROI_ID_RE.match(v):  # "" (or none): a generated id
-        raise ValueError(f"a TROI id is 1-64 printable characters, no control characters, no space at either end (got {v[:80]!r})")
+        raise ValueError(f"a TROI id is 1-64 printable characters, no control characters, no space at either end (got {shown(v)})")
     return v or None
 
 
@@ -91,6 +102,13 @@ class TroiSpec(_Strict):
 class FieldSpec(_Strict):
     trois: list[TroiSpec] = Field(default_factory=list, max_length=MAX_TROIS)
     prescan: str | None = Field(None, description="CSV or GeoJSON file of TROI centres and radii")
+
+    @field_validator("prescan")
+    @classmethod
+    def _prescan(cls, v: str | None) -> str | None:
+        if v is not None and "\0" in v:  # os calls refuse it with a ValueError
+            raise ValueError("a file name cannot contain a NUL character")
+        return v
 
     @model_validator(mode="after")
     def _one_source(self) -> "FieldSpec":
@@ -148,7 +166,7 @@ class ZenohSpec(_Strict):
     def _endpoints(cls, v: list[str]) -> list[str]:
         bad = [e for e in v if not ENDPOINT_RE.match(e)]
         if bad:
-            raise ValueError(f"a zenoh endpoint is <protocol>/<address>, e.g. tls/192.168.80.3:7447 (got {bad[0]!r})")
+            raise ValueError(f"a zenoh endpoint is <protocol>/<address>, e.g. tls/192.168.80.3:7447 (got {shown(bad[0])})")
         return v
 
 
@@ -163,7 +181,7 @@ class CanSpec(_Strict):
         import can
 
         if v not in can.VALID_INTERFACES:
-            raise ValueError(f"unknown python-can interface {v!r} (socketcan on the robot)")
+            raise ValueError(f"unknown python-can interface {shown(v)} (socketcan on the robot)")
         return v
 
 
@@ -179,6 +197,21 @@ class HardwareDrivers(_Tagged):
 
 
 FUEL_RESERVE = 0.02  # tank fraction never planned into by default
+FUEL_MARGIN = 1.25  # × the expected fuel of one ξ hold (ignition and a relight cost some too)
+
+
+def hold_fuel(xi_s: float, rate_per_s: float) -> float:
+    """Tank fraction one ξ hold is planned to take (0 while no rate is known). The executive
+    begins a target only if this much leaves more than the reserve; `validate` uses the same."""
+    return FUEL_MARGIN * xi_s * rate_per_s
+
+
+def holds_left(fuel: float, reserve: float, need: float) -> float:
+    """How many holds of `need` can still begin from `fuel`, each leaving more than `reserve`
+    (the executive's rule); inf while `need` is unknown (0)."""
+    if need <= 0:
+        return math.inf
+    return max(0, math.ceil((fuel - reserve) / need) - 1)
 
 
 class IgniterSpec(_Strict):
@@ -202,7 +235,7 @@ class OutputSpec(_Strict):
 
 
 class Mission(_Strict):
-    name: str = "mission"
+    name: str = Field("mission", description="written into summary.json and the run log's metadata")
     robot: RobotConfig = Field(default_factory=RobotConfig)
     task: TaskConfig = Field(default_factory=TaskConfig)
     field: FieldSpec
@@ -215,71 +248,176 @@ class Mission(_Strict):
     timeouts: dict[Literal["body", "arm", "camera"], Timeout] = Field(default_factory=lambda: {"body": 60.0, "arm": 20.0, "camera": 5.0},
                                                                    description=f"s, each in (0, {MAX_TIMEOUT_S:.0f}]")
 
+    # where it was read from: error lines about it name the file and the key's line
+    _source: Path | None = PrivateAttr(None)
+    _lines: dict = PrivateAttr(default_factory=dict)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if not NAME_RE.match(v):  # it is printed, and written into the summary and the log
+            raise ValueError(f"a mission name is 1-128 printable characters, no control characters, no space at either end (got {shown(v)})")
+        return v
+
     @field_validator("planner")
     @classmethod
     def _planner(cls, v: str) -> str:
         if v not in PLANNER_NAMES:
-            raise ValueError(f"unknown planner {v!r}; choose from {', '.join(PLANNER_NAMES)}")
+            raise ValueError(f"unknown planner {shown(v)}; choose from {', '.join(PLANNER_NAMES)}")
         return v
 
     def end_pose(self) -> SE2:
         return (self.end or self.start).se2()
 
+    def where(self, *key: str | int) -> str:
+        """`FILE:LINE` of a key path of this mission (the nearest given parent's line)."""
+        return f"{self._source or '(mission)'}:{_line_for(self._lines, key) or '?'}"
 
-# ---------------------------------------------------------------------------------------------
-def _line_map(text: str, duplicates: list[str] | None = None) -> dict[tuple, int]:
-    """Key path → 1-based line of the node, from the YAML composition tree. Keys given twice in
-    one mapping (YAML would silently keep the last) are appended to `duplicates`."""
-    out: dict[tuple, int] = {}
 
-    seen_nodes: set[int] = set()
+# ---- reading the YAML -------------------------------------------------------------------------
+MAX_NODES = 100_000  # YAML nodes, an alias counted each time it is used (MAX_TROIS listed TROIs: ~5·10⁴)
+MAX_INT_DIGITS = 100  # no mission value needs more (int() of over 4300 digits raises a plain ValueError)
+_YAML_STR = "tag:yaml.org,2002:str"
 
-    def walk(node, path: tuple) -> None:
-        out[path] = node.start_mark.line + 1
-        if id(node) in seen_nodes:  # an alias: its lines were mapped where it was anchored
+
+class _Expansion(ValueError):
+    def __init__(self, node: yaml.Node, problem: str):
+        super().__init__(problem)
+        self.line = node.start_mark.line + 1
+
+
+class _ValueInFile(yaml.constructor.ConstructorError):
+    """A scalar that YAML 1.1 would read as another value than it shows (`node`: where)."""
+
+    def __init__(self, node: yaml.Node, problem: str):
+        super().__init__(None, None, problem, node.start_mark)
+        self.node = node
+
+
+def _number_ambiguity(text: str, leading_zero: bool = True) -> str | None:
+    """Why YAML 1.1 (or pydantic after it) reads the plain scalar `text` as a number other than
+    it shows, or None: 010 is octal 8, 1_2 is 12, 1:20 is 80 (base 60)."""
+    t = text.lstrip("+-")
+    if "_" in t:
+        why = "YAML 1.1 drops the _"
+    elif ":" in t:
+        why = "YAML 1.1 reads a:b as base 60"
+    elif leading_zero and len(t) > 1 and t[0] == "0" and t[1].isdigit():
+        why = "YAML 1.1 reads a leading 0 as octal"
+    else:
+        return None
+    return f"ambiguous number {shown(text)} ({why}): write the number plainly, or quote it if it is text"
+
+
+class _Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # libyaml's parser when installed: ~4× faster
+    """yaml's safe loader whose numbers read as they show, and whose value errors name the node."""
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        text = str(node.value)
+        why = _number_ambiguity(text)
+        if why:
+            raise _ValueInFile(node, why)
+        digits = len(text.lstrip("+-"))
+        if digits > MAX_INT_DIGITS:
+            raise _ValueInFile(node, f"an integer of {digits} digits is not a mission value (at most {MAX_INT_DIGITS})")
+        return super().construct_yaml_int(node)
+
+    def construct_yaml_float(self, node: yaml.ScalarNode) -> float:
+        why = _number_ambiguity(str(node.value), leading_zero=False)  # 010.5 is 10.5 to everyone
+        if why:
+            raise _ValueInFile(node, why)
+        return super().construct_yaml_float(node)
+
+    def construct_object(self, node: yaml.Node, deep: bool = False) -> Any:
+        try:
+            return super().construct_object(node, deep)
+        except (ValueError, OverflowError) as e:  # e.g. a timestamp 2024-02-30
+            what = f" {shown(node.value)}" if isinstance(node, yaml.ScalarNode) else ""
+            raise _ValueInFile(node, f"cannot read the value{what}: {e}") from e
+
+
+_Loader.add_constructor("tag:yaml.org,2002:int", _Loader.construct_yaml_int)
+_Loader.add_constructor("tag:yaml.org,2002:float", _Loader.construct_yaml_float)
+
+
+def _key_text(key: tuple) -> str:
+    return ".".join(str(k) if len(str(k)) <= 40 else f"{str(k)[:40]}…" for k in key)
+
+
+def _read_yaml(path: Path, text: str) -> tuple[Any, dict[tuple, int], dict[tuple, tuple[bool, str]], list[str]]:
+    """Parse once: the data; key path → 1-based line; key path → (quoted?, text) of each text
+    scalar; and keys given twice in one mapping (YAML would silently keep the last), as
+    `LINE: key: ...` lines. Hostile YAML (nesting, aliases) and values YAML 1.1 would misread
+    are MissionErrors."""
+    lines: dict[tuple, int] = {}
+    texts: dict[tuple, tuple[bool, str]] = {}
+    dups: list[str] = []
+    paths: dict[int, tuple] = {}
+
+    def walk(node: yaml.Node, path: tuple) -> None:
+        lines[path] = node.start_mark.line + 1
+        if isinstance(node, yaml.ScalarNode) and node.tag == _YAML_STR:
+            texts[path] = (bool(node.style), node.value)  # style: quoted or block; plain is None
+        if id(node) in paths:  # an alias: its lines were mapped where it was anchored
             return
-        seen_nodes.add(id(node))
+        paths[id(node)] = path
         if isinstance(node, yaml.MappingNode):
             seen: dict = {}
             for k, v in node.value:
                 # a complex key (`? [a, b]`) is unhashable: name it by its line, pydantic refuses it
                 key = k.value if isinstance(k, yaml.ScalarNode) else f"<key on line {k.start_mark.line + 1}>"
-                if duplicates is not None and key in seen:
-                    where = ".".join(str(x) for x in path + (key,))
-                    duplicates.append(f"{k.start_mark.line + 1}: {where}: key given twice (first on line {seen[key]})")
+                if key in seen:
+                    dups.append(f"{k.start_mark.line + 1}: {_key_text(path + (key,))}: key given twice (first on line {seen[key]})")
                 seen.setdefault(key, k.start_mark.line + 1)
-                out[path + (key,)] = k.start_mark.line + 1
+                lines[path + (key,)] = k.start_mark.line + 1
                 walk(v, path + (key,))
         elif isinstance(node, yaml.SequenceNode):
             for i, v in enumerate(node.value):
                 walk(v, path + (i,))
 
-    root = yaml.compose(text, Loader=yaml.SafeLoader)
-    if root is not None:
-        _check_expansion(root)
+    loader = _Loader(text)
+    try:
+        root = loader.get_single_node()
+        if root is None:
+            return None, lines, texts, dups
+        _check_expansion(root)  # first: walking or constructing an alias bomb would not end
         walk(root, ())
-    return out
+        data = loader.construct_document(root)
+    except _Expansion as e:
+        raise MissionError([f"{path}:{e.line}: {e}"]) from e
+    except RecursionError as e:  # the walks recurse (libyaml itself stops at 1000 levels)
+        raise MissionError([f"{path}: the YAML is nested too deeply to be a mission file"]) from e
+    except _ValueInFile as e:
+        key = paths.get(id(e.node))
+        raise MissionError([f"{path}:{e.problem_mark.line + 1}: {_key_text(key) + ': ' if key else ''}{e.problem}"]) from e
+    except yaml.YAMLError as e:
+        problem = " ".join(str(getattr(e, "problem", None) or e).split())  # a reader error spans lines
+        if "maximum nesting depth" in problem:
+            raise MissionError([f"{path}: the YAML is nested too deeply to be a mission file"]) from e
+        mark = getattr(e, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        raise MissionError([f"{where}: YAML syntax error: {problem[:300]}"]) from e
+    finally:
+        loader.dispose()
+    return data, lines, texts, dups
 
 
-MAX_NODES = 1_000_000  # YAML nodes after aliases are expanded (a mission of 10⁵ TROIs has ~6·10⁵)
-
-
-class _Expansion(ValueError):
-    pass
-
-
-def _check_expansion(root) -> None:
-    """Refuse an alias that contains itself and alias "bombs" (a few lines that expand to
-    billions of nodes, which validation would then walk): count the nodes aliases expand to."""
+def _check_expansion(root: yaml.Node) -> None:
+    """Refuse an alias that contains itself, alias "bombs" (a few lines that expand to billions
+    of nodes, which validation would then walk) and more nodes than any mission has: count the
+    nodes, each alias as often as it is used."""
     size: dict[int, int] = {}
     open_: set[int] = set()
+    aliased = False
 
-    def count(node) -> int:
+    def count(node: yaml.Node) -> int:
+        nonlocal aliased
         k = id(node)
         if k in size:
+            aliased = True  # a node met again: an alias
             return size[k]
         if k in open_:
-            raise _Expansion(f"line {node.start_mark.line + 1}: a YAML alias refers to a node that contains it")
+            raise _Expansion(node, "a YAML alias refers to a node that contains it")
         open_.add(k)
         kids = [x for kv in node.value for x in kv] if isinstance(node, yaml.MappingNode) else \
             node.value if isinstance(node, yaml.SequenceNode) else []
@@ -287,7 +425,10 @@ def _check_expansion(root) -> None:
         for c in kids:
             n += count(c)
             if n > MAX_NODES:
-                raise _Expansion(f"line {node.start_mark.line + 1}: YAML aliases expand to more than {MAX_NODES} nodes")
+                if aliased:
+                    raise _Expansion(node, f"YAML aliases expand to more than {MAX_NODES} nodes: not a mission file")
+                raise _Expansion(node, f"the YAML has more than {MAX_NODES} nodes: not a mission file ({MAX_TROIS} listed "
+                                       f"TROIs take ~{9 * MAX_TROIS}; put long TROI lists in field.prescan)")
         open_.discard(k)
         size[k] = n
         return n
@@ -296,12 +437,118 @@ def _check_expansion(root) -> None:
 
 
 def _line_for(lines: dict[tuple, int], loc: tuple) -> int | None:
-    loc = tuple(x for x in loc if not (isinstance(x, str) and x in ("bench", "hardware", "function-after", "function-before")))
+    """Line of a key path, or of its nearest parent given in the file."""
     while loc:
         if loc in lines:
             return lines[loc]
         loc = loc[:-1]
     return lines.get(())
+
+
+# pydantic's names for union members, validators and tagged-union cases, as they appear in an
+# error's location (never a mission key)
+_TAGS = frozenset({"str", "int", "float", "bool", "list", "dict", "none", "bench", "hardware"})
+
+
+def _is_tag(el: Any) -> bool:
+    return isinstance(el, str) and (el in _TAGS or any(c in el for c in "[](),-") or el[:1].isupper())
+
+
+def _key_path(data: Any, loc: tuple) -> tuple[tuple, bool]:
+    """The file's key path of a pydantic error location (pydantic's own tags left out), and
+    whether the error is a union member refusing the value's type (the location ends in a tag)."""
+    out: list = []
+    cur, at_tag = data, False
+    for i, el in enumerate(loc):
+        if el == "[key]":  # the key of a dict entry: already named
+            continue
+        if isinstance(cur, dict) and isinstance(el, (str, int)) and el in cur:
+            out.append(el)
+            cur, at_tag = cur[el], False
+        elif isinstance(cur, list) and isinstance(el, int) and 0 <= el < len(cur):
+            out.append(el)
+            cur, at_tag = cur[el], False
+        elif i == len(loc) - 1 and isinstance(cur, dict) and not _is_tag(el):
+            out.append(el)  # a required key that is missing
+        else:
+            at_tag = True
+    return tuple(out), at_tag
+
+
+def _validation_problems(e: ValidationError, data: Any, lines: dict[tuple, int], path: Path) -> list[str]:
+    """One `FILE:LINE: key.path: message (got value)` line per problem. A union's members each
+    report; a member that refused the value's type is dropped when another got further (a fault
+    list with one bad phase is not also "not a valid string"), and merged when none did."""
+    errs = []
+    for err in e.errors():
+        key, at_tag = _key_path(data, tuple(err["loc"]))
+        errs.append((key, at_tag, err["msg"].removeprefix("Value error, "), err["type"], err.get("input")))
+    merged: dict[tuple, list] = {}  # key path (of type refusals) → [index into out, messages]
+    out: list[list] = []
+    for key, at_tag, msg, typ, got in errs:
+        if at_tag:
+            if any(k[: len(key)] == key and (len(k) > len(key) or not t) for k, t, *_ in errs):
+                continue
+            if key in merged:
+                merged[key][1].append(msg)
+                continue
+            merged[key] = [len(out), [msg]]
+        out.append([key, msg, typ, got])
+    for i, msgs in merged.values():
+        out[i][1] = msgs[0] + "".join(f", or {m.removeprefix('Input should be ')}" for m in msgs[1:])
+    problems = []
+    for key, msg, typ, got in out:
+        got_s = f" (got {shown(got)})" if typ != "missing" and not isinstance(got, (dict, list)) else ""
+        if got_s and shown(got)[:40] in msg:  # the message names it already
+            got_s = ""
+        msg = msg if len(msg) <= 300 else msg[:300] + "…"
+        problems.append(f"{path}:{_line_for(lines, key) or '?'}: {_key_text(key) or '(top level)'}: {msg}{got_s}")
+    return problems
+
+
+def _texts_read_as_values(mission: Mission, data: Any, texts: dict[tuple, tuple[bool, str]], lines: dict[tuple, int],
+                          path: Path) -> list[str]:
+    """Text that pydantic's lax mode turned into a number or a yes/no value: a quoted '1.2' or
+    'no' (text to YAML: a value written as text is a mistake somewhere), or a plain 09 (a
+    leading zero, octal elsewhere in YAML 1.1). Walks the file's data beside the validated
+    mission, whose models are not strict (tuples come as YAML lists)."""
+    problems: list[str] = []
+
+    def walk(value: Any, given: Any, key: tuple) -> None:
+        if isinstance(given, str):
+            if isinstance(value, (bool, int, float)) and key in texts:
+                quoted, text = texts[key]
+                if quoted:
+                    why = f"{'a yes/no value' if isinstance(value, bool) else 'a number'} is needed, not the quoted text {shown(text)}"
+                else:
+                    why = None if isinstance(value, bool) else _number_ambiguity(text)
+                if why:
+                    problems.append(f"{path}:{_line_for(lines, key) or '?'}: {_key_text(key)}: {why}")
+        elif isinstance(given, dict):
+            for k, v in given.items():
+                if isinstance(value, BaseModel) and isinstance(k, str) and k in type(value).model_fields:
+                    walk(getattr(value, k), v, key + (k,))
+                elif isinstance(value, dict) and k in value:
+                    walk(value[k], v, key + (k,))
+        elif isinstance(given, list) and isinstance(value, (list, tuple)) and len(value) == len(given):
+            for i, (m, g) in enumerate(zip(value, given)):
+                walk(m, g, key + (i,))
+
+    walk(mission, data, ())
+    return problems
+
+
+def _urdf_from_mission_dir(mission: Mission, path: Path) -> Mission:
+    """A relative robot.arm.urdf is read from the mission file's directory, as field.prescan and
+    drivers.zenoh.config_file are (it was read from the current directory)."""
+    urdf = mission.robot.arm.urdf
+    if not urdf or "\0" in urdf:  # none: the packaged URDF; a NUL: "not found" from RobotModel
+        return mission
+    p = Path(os.path.expanduser(urdf))
+    if p.is_absolute():
+        return mission
+    arm = mission.robot.arm.model_copy(update={"urdf": str(path.resolve().parent / p)})
+    return mission.model_copy(update={"robot": mission.robot.model_copy(update={"arm": arm})})
 
 
 def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
@@ -312,45 +559,67 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
     try:
         size = path.stat().st_size
         if size > MAX_MISSION_BYTES:  # a mission is a few kB; long TROI lists belong in a prescan file
-            raise MissionError([f"{path}: {size / 2**20:.0f} MiB is not a mission file (limit {MAX_MISSION_BYTES // 2**20} MiB; "
+            raise MissionError([f"{path}: {size / 2**20:.1f} MiB is not a mission file (limit {MAX_MISSION_BYTES / 2**20:g} MiB; "
                                 "put long TROI lists in field.prescan)"])
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
         raise MissionError([f"{path}: cannot read: {e}"]) from e
-    dups: list[str] = []
-    try:
-        lines = _line_map(text, dups)  # first: it refuses self-referring and exploding aliases
-        data = yaml.safe_load(text)
-    except _Expansion as e:
-        raise MissionError([f"{path}: {e}"]) from e
-    except RecursionError as e:  # PyYAML composes nested nodes recursively
-        raise MissionError([f"{path}: the YAML is nested too deeply to be a mission file"]) from e
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        raise MissionError([f"{where}: YAML syntax error: {getattr(e, 'problem', None) or e}"]) from e
+    data, lines, texts, dups = _read_yaml(path, text)
     if not isinstance(data, dict):
         raise MissionError([f"{path}:1: the mission file must be a mapping of keys (robot, task, field, start, drivers, …)"])
     problems = [f"{path}:{d}" for d in dups]
     try:
         mission = Mission.model_validate(data)
     except ValidationError as e:
-        for err in e.errors():
-            loc = tuple(err["loc"])
-            line = _line_for(lines, loc)
-            key = ".".join(str(x) for x in loc if x not in ("bench", "hardware", "[key]")) or "(top level)"
-            msg = err["msg"].removeprefix("Value error, ")
-            got = err.get("input")
-            got_s = f" (got {got!r})" if err["type"] not in ("missing",) and not isinstance(got, (dict, list)) else ""
-            if got_s and f"{got!r}"[:40] in msg:  # the message names it already
-                got_s = ""
-            problems.append(f"{path}:{line or '?'}: {key}: {msg}{got_s}")
-        raise MissionError(problems) from e
+        raise MissionError(problems + _validation_problems(e, data, lines, path)) from e
+    problems += _texts_read_as_values(mission, data, texts, lines, path)
     if problems:
         raise MissionError(problems)
+    mission = _urdf_from_mission_dir(mission, path)
+    mission._source, mission._lines = path, lines
     trois = _trois(mission, path, lines)
     _check_plan(mission, trois, path, lines)
     return mission, trois
+
+
+def robot_model(mission: Mission):
+    """The mission's RobotModel: its URDF, flange frame, joints and stow pose (ms; the maps are
+    left to `run`). A problem is a MissionError on the key's line of the mission file."""
+    from capm_field.robot_model import RobotModel
+
+    try:
+        return RobotModel(mission.robot)
+    except UserError as e:  # "robot.arm.<key>: ..."
+        key = str(e).split(":", 1)[0]
+        loc = tuple(key.split(".")) if key.startswith("robot.") else ("robot",)
+        raise MissionError([f"{mission.where(*loc)}: {e}"]) from e
+
+
+def _bench_fuel_per_s() -> float:
+    from sim_bench.sim_igniter import IgniterParams
+
+    return IgniterParams().fuel_per_s
+
+
+def _hold_rate(mission: Mission) -> tuple[float, str]:
+    """The fuel rate a run will plan with from its start: the configured one, and on the bench at
+    least the simulated igniter's own (0: not known before the first hold)."""
+    rate, what = mission.igniter.fuel_per_s or 0.0, "igniter.fuel_per_s"
+    if mission.drivers.kind == "bench" and _bench_fuel_per_s() > rate:
+        rate, what = _bench_fuel_per_s(), "the bench igniter's rate"
+    return rate, what
+
+
+def fuel_warnings(mission: Mission, n_trois: int) -> list[str]:
+    """A full tank that does not cover every target (the run warns of it at start, then stops
+    before the first target that does not fit)."""
+    rate, what = _hold_rate(mission)
+    need = hold_fuel(mission.task.xi, rate)
+    holds = holds_left(1.0, mission.igniter.fuel_reserve, need)
+    if 1 <= holds < n_trois:
+        return [f"igniter: a full tank is enough for {holds} of {n_trois} targets (a hold needs ~{need:.1%} at {what}, "
+                f"reserve {mission.igniter.fuel_reserve:.1%}); the run stops before the first that does not fit"]
+    return []
 
 
 def _check_plan(mission: Mission, trois: list[TROI], path: Path, lines: dict[tuple, int]) -> None:
@@ -366,6 +635,14 @@ def _check_plan(mission: Mission, trois: list[TROI], path: Path, lines: dict[tup
             bench_faults(mission.drivers.faults, len(trois), mission.drivers.transport)
         except UserError as e:
             problems.append(f"{path}:{_line_for(lines, ('drivers', 'faults')) or '?'}: drivers.faults: {str(e).removeprefix('--faults: ')}")
+    # a hold that can never begin: the run would abort at its first target (`holds_left`: the
+    # executive's own rule, a full tank at start)
+    rate, what = _hold_rate(mission)
+    need = hold_fuel(mission.task.xi, rate)
+    if holds_left(1.0, mission.igniter.fuel_reserve, need) < 1:
+        problems.append(f"{path}:{_line_for(lines, ('igniter',)) or '?'}: igniter: a full tank cannot begin one hold: a hold needs "
+                        f"~{need:.1%} ({FUEL_MARGIN} × task.xi {mission.task.xi:g} s × {rate:g}/s, {what}) and "
+                        f"fuel_reserve {mission.igniter.fuel_reserve:.1%} is kept")
     from .ordering import order_trois
 
     start, end = mission.start.se2(), mission.end_pose()
@@ -434,7 +711,7 @@ def load_prescan(src: Path) -> list[TROI]:
             try:
                 x, y, r = float(row["x"]), float(row["y"]), float(row["r"])
             except (KeyError, TypeError, ValueError):
-                problems.append(f"{src}:{i}: need numeric columns x, y, r (got {row})")
+                problems.append(f"{src}:{i}: need numeric columns x, y, r (got {shown(row)})")
                 continue
             out.append(_checked_troi(src, i, x, y, r, row.get("id") or f"T{len(out):02d}", problems))
     else:
@@ -464,8 +741,15 @@ def load_prescan(src: Path) -> list[TROI]:
             if not _is_number(r):
                 problems.append(f"{src}: features[{i}].properties: need a numeric radius (or r)")
                 continue
-            x, y = (float(c) for c in coords[:2])
-            out.append(_checked_troi(src, None, x, y, float(r), str(props.get("id", f"T{len(out):02d}")), problems, f"features[{i}]"))
+            try:
+                x, y, r = float(coords[0]), float(coords[1]), float(r)
+            except OverflowError:  # an integer of hundreds of digits
+                problems.append(f"{src}: features[{i}]: coordinates and radius must be field-frame metres within "
+                                f"±{FIELD_EXTENT:.0f} (got an integer of {max(len(str(abs(v))) for v in (*coords[:2], r) if isinstance(v, int))} digits)")
+                continue
+            tid = props.get("id")  # null and "" are no id, as in field.trois: a generated one
+            tid = f"T{len(out):02d}" if tid is None or tid == "" else str(tid)
+            out.append(_checked_troi(src, None, x, y, r, tid, problems, f"features[{i}]"))
     if problems:
         raise MissionError(problems)
     return out

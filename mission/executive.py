@@ -31,7 +31,7 @@ from capm_field.planners import BasePlanner, PlanningCore
 from capm_field.reachability import FlameSolver
 from drivers.interfaces import DriverError, DriverSet, DriverTimeout, EStopActive, LinkLost
 
-from .config import FUEL_RESERVE
+from .config import FUEL_MARGIN, FUEL_RESERVE, hold_fuel, holds_left
 from .interlock import IgnitionInterlock
 from .ordering import order_trois
 from .ordering import x_kmax as x_kmax_of
@@ -74,6 +74,7 @@ class MissionResult:
     wall_s: float
     aborted: str | None = None
     order: list[str] = field(default_factory=list)
+    interrupted: str | None = None  # "SIGINT" / "SIGTERM": the run was stopped from outside
 
     @property
     def success_rate(self) -> float:
@@ -91,6 +92,7 @@ class MissionResult:
             "success_rate": self.success_rate,
             "wall_s": self.wall_s,
             "aborted": self.aborted,
+            "interrupted": self.interrupted is not None,
             "order": self.order,
         }
 
@@ -466,12 +468,11 @@ class Executive:
             self.d.igniter.disarm()
             self._igniter_state(il)
 
-    FUEL_MARGIN = 1.25  # × the expected fuel of one ξ hold (ignition and a relight cost some too)
+    FUEL_MARGIN = FUEL_MARGIN  # × the expected fuel of one ξ hold (`mission.config.hold_fuel`, which validate uses too)
 
     def _fuel_need(self) -> float:
         """Tank fraction one ξ hold is expected to burn (0 while no rate is known)."""
-        rate = max(self.fuel_per_s or 0.0, self._fuel_rate_seen)
-        return self.FUEL_MARGIN * self.task.xi * rate
+        return hold_fuel(self.task.xi, max(self.fuel_per_s or 0.0, self._fuel_rate_seen))
 
     def _check_fuel(self, tid: str) -> None:
         """Begin a target only with its flame hold's fuel above the reserve: aborting here, before
@@ -674,7 +675,7 @@ class Executive:
                     self.log.truth_mpoi(self.now_ns(), t.id, tuple(self.truth[t.id]))
         self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
         self._tid, self._moves, self._e_start = "", 0, 0.0
-        aborted = None
+        aborted = interrupted = None
         try:
             self._check_startup()
             if field_order is not None:
@@ -714,6 +715,11 @@ class Executive:
             # robot/task): the robot is made safe and the run recorded like any abort, traceback in the log
             aborted = f"internal error: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
             self._event("error", "".join(traceback.format_exception(e))[-8000:])
+        except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM (`capm-field run` raises it for that too):
+            # ended like an abort and recorded; a second one during the ending propagates (the
+            # caller closes the drivers, igniter first)
+            interrupted = str(e) or "SIGINT"
+            aborted = f"interrupted ({interrupted})"
         finally:
             self._safe()
         if aborted:
@@ -723,9 +729,12 @@ class Executive:
             except Exception:  # noqa: BLE001
                 pass
             try:
-                self.d.arm.stow(self.timeouts["arm"])
+                if not interrupted:  # stopped from outside: no new arm motion the operator did not ask for
+                    self.d.arm.stow(self.timeouts["arm"])
             except Exception:  # noqa: BLE001 - stow "if possible"
                 pass
+            if interrupted:
+                self._event("warning", f"mission interrupted ({interrupted}): flame off, body stopped, arm left where it is")
             for r in results:
                 if r.reason is None and not r.flamed:
                     r.reason = "mission_aborted"
@@ -736,7 +745,7 @@ class Executive:
                 pass
             self._event("info", f"mission done: energy {self.total_energy:.3f}")
         self._igniter_state()
-        return MissionResult(results, self.total_energy, time.perf_counter() - t0, aborted, [t.id for t in ordered])
+        return MissionResult(results, self.total_energy, time.perf_counter() - t0, aborted, [t.id for t in ordered], interrupted)
 
     def _check_startup(self) -> None:
         b = self.d.body.state()
@@ -747,7 +756,7 @@ class Executive:
         need = self._fuel_need()
         if need > 0:
             fuel = float(self.d.igniter.state().fuel)
-            holds = max(0, int((fuel - self.fuel_reserve) / need))
+            holds = holds_left(fuel, self.fuel_reserve, need)
             if holds < len(self.trois):
                 self._event("warning", f"fuel {fuel:.1%} (reserve {self.fuel_reserve:.1%}) is enough for about {holds} "
                                        f"of {len(self.trois)} targets; the mission stops before the first that does not fit")

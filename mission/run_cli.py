@@ -1,7 +1,8 @@
 """`capm-field run MISSION.yaml` and `capm-field validate MISSION.yaml`.
 
 run: exit 0 when every target was handled (flamed, or skipped with a logged reason), 1 when the
-mission aborted (link loss, E-stop, …), 2 for bad input (nothing started, nothing written).
+mission aborted (link loss, E-stop, …), 2 for bad input (nothing started, nothing written),
+130 / 143 when interrupted by Ctrl-C / SIGTERM (flame off, summary marked interrupted).
 Writes DIR/run.mcap and DIR/summary.json (DIR from --out or the mission's output.dir).
 """
 
@@ -13,14 +14,18 @@ import json
 import logging
 import os
 import re
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
 from capm_field.cli_args import seed as cli_seed
 from capm_field.errors import UserError
 
-from .config import Mission, MissionError, load_mission
+from .config import Mission, MissionError, fuel_warnings, load_mission, robot_model
+
+OUTPUTS = ("run.mcap", "summary.json")
 
 
 def _validate_parser() -> argparse.ArgumentParser:
@@ -45,23 +50,34 @@ def check_hardware_files(mission: Mission, mission_path: str | Path) -> None:
     except Exception as e:  # noqa: BLE001 - zenoh's parse errors are plain exceptions
         msg = " ".join(str(e).split())
         msg = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", msg)  # zenoh's messages name its Rust source file
-        raise MissionError([f"{mission_path}: drivers.zenoh.config_file {zcfg}: {msg[:300] or type(e).__name__}"]) from e
+        raise MissionError([f"{mission.where('drivers', 'zenoh', 'config_file')}: drivers.zenoh.config_file {zcfg}: {msg[:300] or type(e).__name__}"]) from e
 
 
 def validate_main(argv: list[str]) -> int:
     a = _validate_parser().parse_args(argv)
     mission, trois = load_mission(a.mission)
     check_hardware_files(mission, a.mission)
-    from capm_field.robot_model import RobotModel
-
-    RobotModel(mission.robot)  # the URDF, its flange frame and joint count (ms; the maps are left to run)
-    out = Path(mission.output.dir)
-    if out.exists() and not out.is_dir():
-        raise MissionError([f"{a.mission}: output.dir: {out} exists and is not a directory"])
+    robot_model(mission)  # the URDF, its flange frame and joint count (ms; the maps are left to run)
+    problem = _output_problem(Path(mission.output.dir))
+    if problem:
+        raise MissionError([f"{mission.where('output', 'dir')}: output.dir: {problem}"])
     print(f"{a.mission}: ok — {len(trois)} TROIs, planner {mission.planner}, drivers {mission.drivers.kind}")
-    for w in _link_warnings(mission):
+    for w in _link_warnings(mission) + fuel_warnings(mission, len(trois)):
         print(f"{a.mission}: warning: {w}", file=sys.stderr)
     return 0
+
+
+def _output_problem(out: Path) -> str | None:
+    """Why `out` cannot take a run's files, or None. Checked before anything starts: a directory
+    named summary.json was found by the summary's os.replace after the whole mission, one named
+    run.mcap by the run log after the drivers had opened."""
+    if out.exists() and not out.is_dir():
+        return f"{out} exists and is not a directory"
+    for name in OUTPUTS + ("summary.json.tmp",):
+        p = out / name
+        if (p.exists() or p.is_symlink()) and not p.is_file():
+            return f"{p} is {'a directory' if p.is_dir() else 'not a regular file'}, where the run writes a file"
+    return None
 
 
 def _link_warnings(mission: Mission) -> list[str]:
@@ -122,8 +138,29 @@ def _open_drivers(mission: Mission, robot, trois, seed: int | None, mission_dir:
     return mod.open_hardware_drivers(mission, robot, mission_dir)
 
 
+def _sigterm(signum: int, frame) -> None:
+    # `systemctl stop`, a supervisor: end as Ctrl-C does (flame off, summary marked interrupted)
+    raise KeyboardInterrupt("SIGTERM")
+
+
 def main(argv: list[str]) -> int:
     a = _run_parser().parse_args(argv)
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _sigterm)  # default: killed with no finally, flame not put out here
+    try:
+        return _run(a)
+    except KeyboardInterrupt as e:  # before or after the mission (the executive ends its own)
+        if str(e) != "SIGTERM":
+            raise
+        print("capm-field run: interrupted (SIGTERM)", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(a: argparse.Namespace) -> int:
     mission, trois = load_mission(a.mission)
     check_hardware_files(mission, a.mission)
     faults = []
@@ -135,23 +172,24 @@ def main(argv: list[str]) -> int:
     elif a.faults or a.seed is not None:
         raise UserError("--faults and --seed apply to bench missions only (drivers.kind: bench)")
     out = Path(a.out or mission.output.dir)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out: {out} exists and is not a directory")
-    if (out / "run.mcap").exists() and not a.force:
-        raise UserError(f"{out / 'run.mcap'} already exists: choose another --out or pass --force (nothing was started)")
+    problem = _output_problem(out)
+    if problem:
+        raise UserError(f"--out: {problem} (nothing was started)")
+    taken = [out / n for n in OUTPUTS if (out / n).exists()]
+    if taken and not a.force:
+        raise UserError(f"{taken[0]} already exists: choose another --out or pass --force (nothing was started)")
 
     from capm_field.config import ReachabilityConfig
     from capm_field.planners import PlanningCore, make_planner
     from capm_field.reachability import get_maps
-    from capm_field.robot_model import RobotModel
 
     from .executive import Executive
-    from .runlog import RunLog, RunLogHandler
+    from .runlog import RunLogHandler
 
     quiet = a.quiet
     say = (lambda m: None) if quiet else (lambda m: print(f"reachability maps: {m}", file=sys.stderr))
     try:
-        robot = RobotModel(mission.robot)
+        robot = robot_model(mission)
         maps = get_maps(robot, mission.task, ReachabilityConfig(), progress=say)
         core = PlanningCore(robot, maps, mission.task)
         for t in trois:
@@ -186,20 +224,20 @@ def main(argv: list[str]) -> int:
             return wall0 + clock.now_ns()
     else:
         now_ns = time.time_ns
-    log = RunLog(out / "run.mcap", robot, _camera(robot), bench=world is not None, overwrite=a.force)
+    log = _open_log(out, made, drivers, robot, mission, a, bench=world is not None)
     progress = _Progress(not quiet)
-    hook = None
-    if world is not None:
-        from sim_bench.faults import FaultInjector
-
-        if faults:
-            injector = FaultInjector(faults, drivers, log_event=lambda lvl, msg: log.event(now_ns(), lvl, msg))
-            hook = injector.on
-    # warnings and errors of the software's Python loggers go to the console and into the run log
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     to_runlog = RunLogHandler(log, now_ns)
-    logging.getLogger().addHandler(to_runlog)
-    try:
+    try:  # from here on the drivers and the log are closed whatever happens
+        hook = None
+        if world is not None:
+            from sim_bench.faults import FaultInjector
+
+            if faults:
+                injector = FaultInjector(faults, drivers, log_event=lambda lvl, msg: log.event(now_ns(), lvl, msg))
+                hook = injector.on
+        # warnings and errors of the software's Python loggers go to the console and into the run log
+        logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+        logging.getLogger().addHandler(to_runlog)
         ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts, hook=hook,
                        fuel_per_s=mission.igniter.fuel_per_s, fuel_reserve=mission.igniter.fuel_reserve)
         result = ex.run()
@@ -212,20 +250,56 @@ def main(argv: list[str]) -> int:
             log.close()
     summary = result.to_json()
     summary["log_s"] = log.call_time_s  # time spent in RunLog calls (logging cost)
-    summary.update({"mission": str(a.mission), "planner": mission.planner, "seed": a.seed if a.seed is not None else getattr(mission.drivers, "seed", None)})
+    summary.update({"name": mission.name, "mission": str(a.mission), "planner": mission.planner,
+                    "seed": a.seed if a.seed is not None else getattr(mission.drivers, "seed", None), "images": mission.output.images})
     tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    os.replace(tmp, out / "summary.json")
+    try:
+        tmp.write_text(json.dumps(summary, indent=1))
+        os.replace(tmp, out / "summary.json")
+    except OSError as e:  # (a full disk): the run is over, its summary must not be lost
+        tmp.unlink(missing_ok=True)
+        print(f"capm-field run: cannot write {out / 'summary.json'}: {e.strerror or e}; the summary follows on stdout", file=sys.stderr)
+        print(json.dumps(summary))
+        return 1
     flamed = sum(t.flamed for t in result.targets)
     if not quiet:
         print(
             f"{flamed}/{len(result.targets)} flamed, success rate {result.success_rate:.2f}, energy {result.total_energy:.2f}, "
             f"wall {result.wall_s:.1f} s (logging {log.call_time_s:.2f} s, {100 * log.call_time_s / max(result.wall_s, 1e-9):.1f} %) → {out}/run.mcap, {out}/summary.json"
         )
+    if result.interrupted:
+        print(f"capm-field run: interrupted ({result.interrupted}): flame off, body stopped; {out / 'summary.json'} marked interrupted", file=sys.stderr)
+        return 128 + signal.Signals[result.interrupted]
     if result.aborted:
         print(f"capm-field run: mission aborted: {result.aborted}", file=sys.stderr)
         return 1
     return 0
+
+
+def _open_log(out: Path, made: bool, drivers, robot, mission: Mission, a: argparse.Namespace, *, bench: bool):
+    """The run log, opened once the drivers are; if it cannot be, the drivers are closed again
+    (igniter first) before the error. With --force the previous run's summary goes as its log is
+    reopened: it must not sit beside a new run that may end before writing its own."""
+    from .runlog import RunLog
+
+    try:
+        log = RunLog(out / "run.mcap", robot, _camera(robot), bench=bench, overwrite=a.force, images=mission.output.images,
+                     metadata={"mission_name": mission.name, "mission": str(a.mission)})
+        try:
+            (out / "summary.json").unlink(missing_ok=True)
+        except BaseException:
+            log.close()
+            raise
+    except Exception as e:
+        drivers.close()
+        if made and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise UserError(f"cannot create the run log {out / 'run.mcap'}: {getattr(e, 'strerror', None) or e} "
+                        "(nothing was started; drivers closed)") from e
+    except BaseException:
+        drivers.close()
+        raise
+    return log
 
 
 def _camera(robot):

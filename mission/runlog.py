@@ -163,6 +163,7 @@ class RunLog:
         jpeg_quality: int = 85,
         chunk_size: int = 256 * 1024,
         metadata: dict[str, str] | None = None,
+        images: bool = True,
     ) -> None:
         self.path = Path(path)
         self.robot = robot
@@ -170,6 +171,7 @@ class RunLog:
         self.bench = bench
         self.flush_period_s = float(flush_period_s)
         self.jpeg_quality = int(jpeg_quality)
+        self.images = bool(images)  # False (output.images): captures are noted in /log, not stored
         self._lock = threading.Lock()
         self._closed = False
         self._dirty = False
@@ -353,7 +355,12 @@ class RunLog:
         self._emit(t_ns, lambda: self._tf.log(msg, log_time=int(t_ns)))
 
     def image(self, t_ns: int, bgr: np.ndarray, target_id: str) -> None:
-        """CompressedImage (JPEG) in frame `camera`, plus CameraCalibration for Pinhole in Rerun."""
+        """CompressedImage (JPEG) in frame `camera`, plus CameraCalibration for Pinhole in Rerun
+        (with `images` off: only the /log note that an image was taken)."""
+        if not self.images:
+            h, w = np.shape(bgr)[:2]
+            self.event(t_ns, "debug", f"image target={target_id} {w}x{h} (not stored: output.images is false)", name="camera")
+            return
         t0 = time.perf_counter()
         ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
         if not ok:

@@ -1,0 +1,283 @@
+"""`capm-field validate` / `run` on malformed or unusual mission files (second CLI audit): each case
+ends in one line naming the file, line and key path (exit 2, nothing started), and a run that
+cannot finish its outputs is refused before it starts, not after the mission.
+
+In-process (`capm_field.cli.main`) so that an escaping exception fails the test; the two signal
+cases run in a subprocess.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from capm_field import cli
+from mission.config import MissionError, load_mission
+from test_mission_config import GOOD  # the minimal good mission the cases below spoil
+
+TWO = """\
+name: NAME
+field:
+  trois:
+    - {id: W01, x: 1.2, y: 0.4, r: 0.22}
+    - {id: W02, x: 2.3, y: 0.9, r: 0.25}
+start: {x: 0.0, y: 0.0}
+drivers: {kind: bench, seed: 1}
+"""
+
+
+def _write(tmp_path: Path, text: str | bytes, name: str = "m.yaml") -> Path:
+    p = tmp_path / name
+    p.write_bytes(text.encode() if isinstance(text, str) else text)
+    return p
+
+
+def _validate(tmp_path: Path, text: str | bytes, capsys) -> tuple[int, str]:
+    rc = cli.main(["validate", str(_write(tmp_path, text))])
+    return rc, capsys.readouterr().err
+
+
+def _one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+# ---- 1, 10: numbers as YAML 1.1 reads them ----------------------------------------------------------
+@pytest.mark.parametrize(
+    "old, new, expect",
+    [
+        # int() of over 4300 digits raised a plain ValueError out of yaml.safe_load: a traceback
+        ("x: 1.0", "x: 1" + "0" * 5000, ":3: field.trois.0.x: an integer of 5001 digits"),
+        ("seed: 3", "seed: 1" + "0" * 5000, ":5: drivers.seed: an integer of 5001 digits"),
+        ("field:", "name: 1" + "0" * 5000 + "\nfield:", ":1: name: an integer of 5001 digits"),
+        # YAML 1.1: 010 is octal 8, 1_2 is 12, 1:20 is 80 (base 60): read silently as other numbers
+        ("x: 1.0", "x: 010", ":3: field.trois.0.x: ambiguous number '010'"),
+        ("x: 1.0", "x: '1_2'", ":3: field.trois.0.x: a number is needed, not the quoted text '1_2'"),
+        ("x: 1.0", "x: 1_2", ":3: field.trois.0.x: ambiguous number '1_2'"),
+        ("x: 1.0", "x: 1:20", ":3: field.trois.0.x: ambiguous number '1:20'"),
+        ("x: 1.0", "x: 1_000.5", ":3: field.trois.0.x: ambiguous number '1_000.5'"),
+        ("x: 1.0", "x: 09", ":3: field.trois.0.x: ambiguous number '09'"),
+        # a quoted number is text: pydantic's lax mode read it as the number (anywhere, robot included)
+        ("x: 1.0", "x: '1.0'", ":3: field.trois.0.x: a number is needed, not the quoted text '1.0'"),
+        ("seed: 3", 'seed: "3"', ":5: drivers.seed: a number is needed, not the quoted text '3'"),
+        ("seed: 3}", "seed: 3}\nrobot: {body: {operating_height: '0.8'}}", ":6: robot.body.operating_height: a number is needed"),
+        ("seed: 3}", "seed: 3}\noutput: {images: 'no'}", ":6: output.images: a yes/no value is needed, not the quoted text 'no'"),
+    ],
+)
+def test_numbers_yaml_would_misread_are_refused(tmp_path, capsys, old, new, expect):
+    rc, err = _validate(tmp_path, GOOD.replace(old, new), capsys)
+    line = _one_line(err)
+    assert rc == 2 and expect in line and "m.yaml:" in line, line
+    assert len(line) < 400, line
+
+
+def test_numbers_yaml_reads_plainly_still_load(tmp_path):
+    """1e0 (text to YAML 1.1, a number to everyone else), 0.5, -0 and quoted ids stay accepted."""
+    m, trois = load_mission(_write(tmp_path, GOOD.replace("y: 0}", "y: -0, yaw: 1e0}").replace("{x: 1.0", "{id: '007', x: 1.0")))
+    assert m.start.yaw == 1.0 and trois[0].id == "007"
+
+
+# ---- 2, 3, 10: prescan files ---------------------------------------------------------------------------
+def test_prescan_geojson_huge_integer_null_id_and_nul_path(tmp_path, capsys):
+    m = GOOD.replace("  trois:\n    - {x: 1.0, y: 2.0, r: 0.2}\n", "  prescan: PRE\n")
+    feat = '{"type": "Feature", "geometry": {"type": "Point", "coordinates": [X, 0.5]}, "properties": {"radius": 0.2, "id": ID}}'
+    doc = '{"type": "FeatureCollection", "features": [%s]}'
+    # float() of a 401-digit integer: OverflowError traceback
+    (tmp_path / "big.geojson").write_text(doc % feat.replace("X", "1" + "0" * 400).replace("ID", '"A"'))
+    rc = cli.main(["validate", str(_write(tmp_path, m.replace("PRE", "big.geojson")))])
+    line = _one_line(capsys.readouterr().err)
+    assert rc == 2 and "big.geojson" in line and "features[0]" in line and len(line) < 400, line
+    # "id": null became a TROI named "None"; null and "" are no id: generated as in trois
+    (tmp_path / "n.geojson").write_text(doc % ", ".join(feat.replace("X", "1.5").replace("ID", i) for i in ("null", '""')))
+    _, trois = load_mission(_write(tmp_path, m.replace("PRE", "n.geojson")))
+    assert [t.id for t in trois] == ["T00", "T01"]
+    # a NUL in the prescan path: ValueError (embedded null byte) traceback
+    rc = cli.main(["validate", str(_write(tmp_path, m.replace("PRE", '"a\\0b.csv"')))])
+    line = _one_line(capsys.readouterr().err)
+    assert rc == 2 and ":2: field.prescan: " in line, line
+
+
+# ---- 9: messages ---------------------------------------------------------------------------------------
+def test_error_lines_name_keys_not_pydantic_internals(tmp_path, capsys):
+    rc, err = _validate(tmp_path, GOOD.replace("seed: 3", "seed: 3, faults: [{kind: estop, target: 0, phase: fly}]"), capsys)
+    line = _one_line(err)  # was two lines, the second about the 'str' branch of the union
+    assert rc == 2 and ":5: drivers.faults.0.phase: Input should be 'walk'" in line and "function-after" not in line, line
+    # a huge value was echoed whole (a 200 kB line)
+    for extra in ("planner: " + "x" * 200_000, "colour: " + "y" * 200_000, "x" * 100_000 + ": 1"):
+        rc, err = _validate(tmp_path, GOOD + extra + "\n", capsys)
+        line = _one_line(err)
+        assert rc == 2 and ":6: " in line and len(line) < 400, line[:500]
+
+
+def test_urdf_errors_carry_file_line_and_unknown_joint(tmp_path, capsys):
+    rc, err = _validate(tmp_path, GOOD + "robot: {arm: {locked_joints: [nojoint]}}\n", capsys)
+    line = _one_line(err)
+    assert rc == 2 and "m.yaml:6: robot.arm.locked_joints: no joint named 'nojoint'" in line, line
+    rc, err = _validate(tmp_path, GOOD + "robot:\n  arm:\n    urdf: /nonexistent/z1.urdf\n", capsys)
+    assert rc == 2 and "m.yaml:8: robot.arm.urdf: URDF file not found" in _one_line(err), err
+
+
+def test_relative_urdf_is_read_from_the_mission_files_directory(tmp_path, monkeypatch, capsys):
+    from capm_field.robot_model import default_urdf_path
+
+    sub = tmp_path / "site"
+    sub.mkdir()
+    shutil.copy(default_urdf_path(), sub / "arm.urdf")
+    p = _write(sub, GOOD + "robot: {arm: {urdf: arm.urdf}}\n")
+    monkeypatch.chdir(tmp_path)  # not the mission's directory: the URDF was looked up here
+    assert cli.main(["validate", str(p)]) == 0, capsys.readouterr().err
+    m, _ = load_mission(p)
+    assert Path(m.robot.arm.urdf) == sub / "arm.urdf"
+
+
+# ---- 8: fuel --------------------------------------------------------------------------------------------
+def test_fuel_settings_that_never_fire_are_refused(tmp_path, capsys):
+    rc, err = _validate(tmp_path, TWO.replace("NAME", "f") + "igniter: {fuel_per_s: 1.0}\n", capsys)
+    line = _one_line(err)
+    assert rc == 2 and "m.yaml:8: igniter: a full tank cannot begin one hold: a hold needs ~375.0%" in line, line
+    # the bench igniter's own rate (1/600 per s): a 99 % reserve leaves room for one hold of two
+    rc, err = _validate(tmp_path, TWO.replace("NAME", "f") + "igniter: {fuel_reserve: 0.99}\n", capsys)
+    assert rc == 0 and "warning: igniter: a full tank is enough for 1 of 2 targets" in err, err
+    rc, err = _validate(tmp_path, TWO.replace("NAME", "f") + "igniter: {fuel_reserve: 0.995}\n", capsys)
+    assert rc == 2 and "a full tank cannot begin one hold" in _one_line(err), err
+
+
+# ---- 11: size ---------------------------------------------------------------------------------------------
+def test_large_mission_files_are_refused_fast_and_not_blamed_on_aliases(tmp_path):
+    t0 = time.process_time()
+    for size, expect in ((1_950_000, "3.7 MiB is not a mission file"), (500_000, "the YAML has more than 100000 nodes")):
+        with pytest.raises(MissionError) as ei:  # a flow list without a single alias
+            load_mission(_write(tmp_path, "name: [" + "1," * size + "1]\n"))
+        assert expect in str(ei.value) and "alias" not in str(ei.value), str(ei.value)[:300]
+    rows = "".join(f"    - {{id: W{i:06d}, x: {i % 100 * 0.01:.2f}, y: 0.00, r: 0.2}}\n" for i in range(10_000))  # 0.45 MiB
+    with pytest.raises(MissionError, match="field.trois: List should have at most 5000 items"):
+        load_mission(_write(tmp_path, "field:\n  trois:\n" + rows + "start: {x: 0, y: 0}\ndrivers: {kind: bench}\n"))
+    assert time.process_time() - t0 < 8.0  # was ~20 s for the first file alone (two pure-Python parses)
+
+
+# ---- 4, 5, 6, 7: run outputs ------------------------------------------------------------------------------
+def test_run_refuses_output_names_taken_by_directories_before_starting(tmp_path, capsys):
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    for taken, extra in (("summary.json", []), ("summary.json.tmp", []), ("run.mcap", ["--force"])):
+        out = tmp_path / f"o-{taken}"
+        (out / taken).mkdir(parents=True)
+        rc = cli.main(["run", str(p), "--out", str(out), "--quiet"] + extra)
+        line = _one_line(capsys.readouterr().err)
+        assert rc == 2 and taken in line and "nothing was started" in line, line
+        assert sorted(x.name for x in out.iterdir()) == [taken]  # no run.mcap: the mission never ran
+
+
+def test_drivers_are_closed_when_the_run_log_cannot_be_created(tmp_path, monkeypatch, capsys):
+    import mission.run_cli as run_cli
+    import mission.runlog as runlog
+
+    opened, closed = [], []
+    real_open = run_cli._open_drivers
+
+    def spy_open(*a, **k):
+        d = real_open(*a, **k)
+        real_close = d.close
+        d.close = lambda: (closed.append(d), real_close())
+        opened.append(d)
+        return d
+
+    def broken_log(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(run_cli, "_open_drivers", spy_open)
+    monkeypatch.setattr(runlog, "RunLog", broken_log)
+    out = tmp_path / "out"
+    rc = cli.main(["run", str(_write(tmp_path, TWO.replace("NAME", "t"))), "--out", str(out), "--quiet"])
+    line = _one_line(capsys.readouterr().err)
+    assert rc == 2 and "cannot create the run log" in line and "No space left" in line, line
+    assert len(opened) == 1 and closed == opened  # the drivers were open, and closed again
+    assert not opened[0].igniter.board.flame_on
+    assert not out.exists()
+
+
+def test_images_false_name_and_force_replace_the_old_summary(tmp_path, capsys):
+    from mcap.reader import make_reader
+
+    p = _write(tmp_path, TWO.replace("NAME", "plot 7") + "output: {images: false}\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "run.mcap").write_bytes(b"old")
+    (out / "summary.json").write_text('{"old": true}')
+    import mission.executive as ex
+
+    class Killed(BaseException):  # stands for SIGKILL / power loss mid-run: no summary can be written
+        pass
+
+    def killed(self):
+        raise Killed
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(ex.Executive, "_check_startup", killed)
+    try:
+        with pytest.raises(Killed):
+            cli.main(["run", str(p), "--out", str(out), "--quiet", "--force"])
+    finally:
+        mp.undo()
+    # the old run's summary (claiming success) must not sit beside the new, partial run log
+    assert not (out / "summary.json").exists() and (out / "run.mcap").read_bytes() != b"old"
+    assert cli.main(["run", str(p), "--out", str(out), "--quiet", "--force"]) == 0, capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["name"] == "plot 7" and s["images"] is False
+    with open(out / "run.mcap", "rb") as f:
+        reader = make_reader(f)
+        topics = {ch.topic for _, ch, _ in reader.iter_messages()}
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert "/camera/image" not in topics and "/key_state" in topics, topics
+    assert meta["capm_run"]["mission_name"] == "plot 7"
+
+
+def test_mission_name_is_printable_text(tmp_path, capsys):
+    rc, err = _validate(tmp_path, TWO.replace("NAME", '"a\\nb\\x1b[31m"'), capsys)
+    assert rc == 2 and ":1: name: a mission name is 1-128 printable characters" in _one_line(err), err
+
+
+_INTERRUPT = """\
+import os, signal, sys, time
+import mission.executive as ex
+real = ex.Executive._check_startup
+def interrupted(self):
+    real(self)
+    {action}
+    time.sleep(5)  # the signal's KeyboardInterrupt lands here
+ex.Executive._check_startup = interrupted
+from capm_field.cli import main
+sys.exit(main(['run', {mission!r}, '--out', {out!r}, '--quiet', '--force']))
+"""
+
+
+@pytest.mark.parametrize("sig, rc", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc):
+    """Ctrl-C left no summary (or an old one); SIGTERM killed the process without igniter off.
+    Both now: flame off, an interruption event in the log, a summary marked interrupted."""
+    from mission.log_checks import check_ignition_invariant
+    from mission.runlog_read import iter_run
+
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text('{"old": true}')
+    code = _INTERRUPT.format(action=f"os.kill(os.getpid(), signal.{sig})", mission=str(p), out=str(out))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180)
+    assert r.returncode == rc, r.stderr
+    assert "Traceback" not in r.stderr and "interrupted" in r.stderr, r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] is True and s["aborted"].startswith(f"interrupted ({sig})"), s
+    assert all(t["reason"] == "mission_aborted" for t in s["targets"])
+    logs = [m.data.message for m in iter_run(out / "run.mcap", topics={"/log"})]
+    assert any(f"mission interrupted ({sig})" in x for x in logs), logs
+    assert check_ignition_invariant(out / "run.mcap").ok
+    last = [m.data for m in iter_run(out / "run.mcap", topics={"/igniter/state"})][-1]
+    assert not last.flame_on and not last.armed
+
