@@ -33,10 +33,10 @@ measured and judged in `capm_field.candidates`; the ROI is `capm_field.roi`.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import logging
 import math
+import threading
 from dataclasses import replace
 
 import cv2
@@ -66,7 +66,7 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
     A malformed roi gives "bad_image".
     """
     try:
-        with _one_blas_thread():
+        with _one_blas_thread:
             win = search_window(image_bgr, roi)
             if isinstance(win, Detection):
                 return win
@@ -87,17 +87,39 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
         return Detection(None, 0.0, "bad_image")
 
 
-def _one_blas_thread() -> contextlib.AbstractContextManager:
-    """The BLAS libraries (numpy's, scipy's, any other loaded) held to one thread for one detection.
+class _OneBlasThread:
+    """The BLAS libraries (numpy's, scipy's, any other loaded) held to one thread while any
+    detection runs, and given back their own setting when the last one ends.
 
     The detector's matrix products are small (moments of a plant's pixels, the tree median's
     tips × nodes), yet OpenBLAS splits a product of a few thousand elements between its threads,
     and with the other core busy (the mission's drivers and log, another process) each split
     waits for it: 9 ms instead of 0.06 ms for the moments of a 5 000–15 000-pixel plant (session
-    37, other work running beside the bench). The detector's budget is one core; entering and
-    leaving the limit costs ~10 µs."""
-    blas = _blas_libraries()
-    return blas.limit(limits=1) if blas is not None else contextlib.nullcontext()
+    37, other work running beside the bench). The detector's budget is one core. The setting is
+    process-wide, so detections in several threads share one limit (counted): the first sets it,
+    the last restores it (~10 µs each)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._users = 0
+        self._limiter = None  # threadpoolctl's limiter of the first detection in
+
+    def __enter__(self) -> None:
+        blas = _blas_libraries()
+        with self._lock:
+            if self._users == 0 and blas is not None:
+                self._limiter = blas.limit(limits=1)
+            self._users += 1
+
+    def __exit__(self, *exc) -> None:
+        with self._lock:
+            self._users -= 1
+            if self._users == 0 and self._limiter is not None:
+                limiter, self._limiter = self._limiter, None
+                limiter.restore_original_limits()
+
+
+_one_blas_thread = _OneBlasThread()
 
 
 @functools.cache

@@ -829,6 +829,28 @@ def test_detection_holds_blas_to_one_thread_and_restores_it(monkeypatch) -> None
     assert after and all(n == 2 for n in after), after
 
 
+def test_overlapping_detections_share_one_blas_limit() -> None:
+    """Detections in two threads that overlap (A starts, B starts, A ends, B ends): BLAS stays at
+    one thread until the last ends, then gets the process's setting back (a limiter per call let A
+    restore two threads under B, and B then left the process at one)."""
+    from threadpoolctl import ThreadpoolController, threadpool_limits
+
+    import capm_field.detector as det_mod
+
+    def threads() -> set[int]:
+        return {lib["num_threads"] for lib in ThreadpoolController().select(user_api="blas").info()}
+
+    limit = det_mod._one_blas_thread
+    with threadpool_limits(2, user_api="blas"):
+        limit.__enter__()  # A
+        limit.__enter__()  # B
+        limit.__exit__(None, None, None)  # A ends
+        during = threads()
+        limit.__exit__(None, None, None)  # B ends
+        after = threads()
+    assert during == {1} and after == {2}, (during, after)
+
+
 def test_bad_roi_never_raises() -> None:
     img = cv2.imread(str(FIX / "rosette_vga.jpg"))  # a plant: only the roi can make it bad_image
     assert detect_centre(img).reason is None
