@@ -11,13 +11,19 @@ class UserError(Exception):
 def check_output(path: str | None, option: str) -> None:
     """Fail fast (before a long bench) if `path` cannot be an output file: its directory must
     exist and be writable, and it must not be a directory itself. None: nothing to check."""
-    if not path:
+    if path is None:
         return
+    if not path:  # `--json ""` was taken for "not given" and nothing was written
+        raise UserError(f"{option}: empty file name")
     p = Path(path)
     parent = p.parent
     if p.is_dir():
         raise UserError(f"{option} {path}: is a directory, not a file")
     if not parent.is_dir():
+        # the nearest part of the path that exists says why: a file where a directory should be
+        there = next((a for a in (parent, *parent.parents) if a.exists()), None)
+        if there is not None and not there.is_dir():
+            raise UserError(f"{option} {path}: {there} is a file, not a directory")
         raise UserError(f"{option} {path}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise UserError(f"{option} {path}: directory {parent} is not writable")

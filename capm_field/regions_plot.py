@@ -9,6 +9,7 @@ summary and the paper's problem type.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 import numpy as np
@@ -18,25 +19,36 @@ from .errors import UserError, check_output
 from .reachability import get_maps, problem_type
 from .robot_model import RobotModel
 
+RESOLUTION_RANGE = (0.001, 0.1)  # m: finer is a multi-GiB raster, coarser is a handful of cells
+MAX_CELLS = 2000  # raster cells across (the float image is 2000² × 3 × 8 B ≈ 100 MB at most)
+
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="capm-field regions", description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="regions.png", help="PNG file to write")
     ap.add_argument("--radius", type=float, default=0.25, help="TROI radius r_w (m)")
-    ap.add_argument("--mpoi-offset", type=float, default=0.0, help="distance of X̄_w from X_w along +x (m)")
+    ap.add_argument("--mpoi-offset", type=float, default=0.0, help="distance of X̄_w from X_w along +x (m, ≥ 0)")
     ap.add_argument("--delta", type=float, default=TaskConfig().delta, help="δ (NSV resolution threshold)")
     ap.add_argument("--eps-min", type=float, default=TaskConfig().eps_min)
     ap.add_argument("--eps-max", type=float, default=TaskConfig().eps_max)
     ap.add_argument("--urdf", help="Z1 URDF (default: the one shipped in example-robot-data)")
-    ap.add_argument("--resolution", type=float, default=0.01, help="raster cell of the drawing (m)")
+    ap.add_argument("--resolution", type=float, default=0.01,
+                    help=f"raster cell of the drawing (m, {RESOLUTION_RANGE[0]:g} to {RESOLUTION_RANGE[1]:g}, "
+                         f"at most {MAX_CELLS} cells across)")
     return ap
 
 
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
     check_output(a.out, "--out")
-    if a.radius <= 0:
+    if not a.radius > 0:  # (nan too)
         raise UserError(f"--radius must be positive, got {a.radius}")
+    # 0 divided by zero, a negative cell indexed an empty raster, 1e-9 asked for 25 GiB
+    lo, hi = RESOLUTION_RANGE
+    if not lo <= a.resolution <= hi:
+        raise UserError(f"--resolution must be in [{lo:g}, {hi:g}] m, got {a.resolution:g}")
+    if not (math.isfinite(a.mpoi_offset) and a.mpoi_offset >= 0):  # nan drew a PNG without R_m
+        raise UserError(f"--mpoi-offset must be a finite distance ≥ 0 (m), got {a.mpoi_offset:g}")
     if not a.out.lower().endswith(".png"):
         raise UserError(f"--out must name a .png file, got {a.out!r}")
     task = build(TaskConfig, "task", delta=a.delta, eps_min=a.eps_min, eps_max=a.eps_max)
@@ -51,6 +63,9 @@ def main(argv: list[str]) -> int:
     # Raster of arm-base positions around X_w = origin. A position P sees the target at bearing
     # 0 when the body faces it, so membership is by distance (and bearing 0) in each map.
     ext = max(float(np.nanmax(np.where(np.isfinite(ro_map.lo), (np.arange(len(ro_map.lo)) + 1) * ro_map.step, np.nan), initial=1.0)), 1.0) + 0.3
+    if 2 * ext / a.resolution > MAX_CELLS:
+        raise UserError(f"--resolution {a.resolution:g} m makes a raster of {2 * ext / a.resolution:.0f} cells across "
+                        f"(limit {MAX_CELLS}): use at least {2 * ext / MAX_CELLS:.4f} m")
     g = np.arange(-ext, ext, a.resolution)
     X, Y = np.meshgrid(g, g)
     in_o = ro_map.contains(np.hypot(X, Y), np.zeros_like(X))

@@ -15,6 +15,7 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -25,25 +26,57 @@ from capm_field.planners import PlanningCore, make_planner
 from capm_field.reachability import get_maps
 from capm_field.robot_model import RobotModel
 
-from .config import load_mission
+from .config import Mission, load_mission, shown
 from .ordering import order_trois, x_kmax
 
 
-def _read_summary(p: Path) -> tuple[dict, dict]:
-    """A run's summary.json and its flamed targets by id (checked before the bench runs)."""
+def _number(v: Any, where: str, lo: float = 0.0, hi: float = math.inf) -> float:
+    """A finite JSON number in [lo, hi] (not a bool, not a string), else UserError naming `where`."""
+    if v is None:
+        raise UserError(f"{where} is missing")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and lo <= v <= hi):
+        raise UserError(f"{where} must be a finite number in [{lo:g}, {hi:g}], got {shown(v)}")
+    return float(v)
+
+
+def _read_summary(p: Path, mission: Mission, mission_path: str, ids: list[str]) -> tuple[dict, dict[str, float]]:
+    """A run's summary.json (the fields used here, checked before the bench runs: a missing or
+    mistyped one crashed after it) and the energy of each target it flamed, by id."""
     if not p.is_file():
         raise UserError(f"--summary: file not found: {p}")
     try:
         s = json.loads(p.read_text())
-        flamed = {t["id"]: t for t in s["targets"] if t["flamed"]}
-        float(s["success_rate"])
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as e:
+    except (OSError, UnicodeDecodeError, ValueError) as e:
         raise UserError(f"--summary: {p} is not a capm-field run's summary.json ({type(e).__name__}: {e})") from e
-    return s, flamed
+    bad = f"--summary: {p} is not a capm-field run's summary.json"
+    if not isinstance(s, dict) or not isinstance(s.get("targets"), list):
+        raise UserError(f"{bad} (no list of targets)")
+    s["success_rate"] = _number(s.get("success_rate"), f"--summary: {p}: success_rate", 0.0, 1.0)
+    energies: dict[str, float] = {}
+    for i, t in enumerate(s["targets"]):
+        if not isinstance(t, dict) or not isinstance(t.get("id"), str) or not isinstance(t.get("flamed"), bool):
+            raise UserError(f"{bad} (targets[{i}] is not a target with an id and flamed: {shown(t)})")
+        if t["flamed"]:
+            energies[t["id"]] = _number(t.get("energy"), f"--summary: {p}: targets[{i}] ({t['id']}) energy")
+    # a summary of another mission matches no target by id: say so rather than "flamed no target"
+    theirs = [t["id"] for t in s["targets"]]
+    if sorted(theirs) != sorted(ids):
+        who = shown(s.get("name", "?")) + (f" ({shown(s['mission'])})" if isinstance(s.get("mission"), str) else "")
+        extra, missing = sorted(set(theirs) - set(ids)), sorted(set(ids) - set(theirs))
+        eg = ", ".join(x for x in (f"{shown(extra[0])} is not in this mission" if extra else "",
+                                   f"{shown(missing[0])} is not in the summary" if missing else "",
+                                   "an id is listed twice" if len(set(theirs)) != len(theirs) else "") if x)
+        raise UserError(f"--summary: {p} is from another mission: its {len(theirs)} target(s), of mission {who}, are not "
+                        f"the {len(ids)} of this mission {shown(mission.name)} ({mission_path}): {eg}")
+    if s.get("name") not in (None, mission.name):  # same targets: a renamed copy of the mission, compared
+        print(f"capm-field bench-mission: note: --summary is of mission {shown(s['name'])}, this is {shown(mission.name)} "
+              "(same target ids)", file=sys.stderr)
+    return s, energies
 
 
 def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="capm-field bench-mission", description=__doc__.split("\n")[0])
+    # the docstring's first paragraph, one sentence (its first line alone stops mid-sentence)
+    ap = argparse.ArgumentParser(prog="capm-field bench-mission", description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("mission")
     ap.add_argument("--trials", type=int, default=2000, help="MPOI draws per target")
     ap.add_argument("--seed", type=cli_seed, default=0)
@@ -54,7 +87,7 @@ def main(argv: list[str]) -> int:
     if a.trials < 2:
         raise UserError(f"--trials must be ≥ 2, got {a.trials}")
     mission, trois = load_mission(a.mission)
-    s, flamed = _read_summary(Path(a.summary)) if a.summary else (None, {})
+    s, flamed = _read_summary(Path(a.summary), mission, a.mission, [t.id for t in trois]) if a.summary else (None, {})
     robot = RobotModel(mission.robot)
     core = PlanningCore(robot, get_maps(robot, mission.task, ReachabilityConfig()), mission.task)
     ordered = order_trois(trois, mission.start.se2().xy, mission.end_pose().xy)
@@ -66,10 +99,10 @@ def main(argv: list[str]) -> int:
         end = x_kmax(ordered, i, mission.end_pose())
         planner = make_planner(mission.planner, core, seed=a.seed + i)
         plan = planner.plan(here, end, t)
-        s = mission.task.sigma(t.r)
+        sigma = mission.task.sigma(t.r)  # not `s`: that is the run's summary, used below
         costs, oks = [], []
         while len(costs) < a.trials:
-            d = rng.normal(scale=s, size=2)
+            d = rng.normal(scale=sigma, size=2)
             if in_troi and math.hypot(*d) > t.r:
                 continue
             out = planner.after_observation(plan, np.array(t.xy) + d)
@@ -94,7 +127,7 @@ def main(argv: list[str]) -> int:
             raise UserError("--summary: the run flamed no target; nothing to compare")
         bench_e = float(np.mean([r["energy"] for r in same]))
         se = float(math.sqrt(sum(r["energy_sd"] ** 2 for r in same)) / len(same))
-        run_e = float(np.mean([flamed[r["id"]]["energy"] for r in same]))
+        run_e = float(np.mean([flamed[r["id"]] for r in same]))
         z = (run_e - bench_e) / se if se > 1e-9 else math.nan
         print(
             f"run:   energy per flamed weed {run_e:.3f} vs bench {bench_e:.3f} on the same {len(same)} targets "

@@ -25,6 +25,7 @@ import uuid
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -35,11 +36,13 @@ from capm_field.errors import UserError, check_output
 
 from .runlog import PROTO_TOPICS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
+from .runlog_schema import message_class
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
 FIELD = "field"
 IMAGE_PLANE = "camera_image_plane"  # Rerun's frame for the image of a Foxglove CameraCalibration
 _DURATION_LIMIT_NS = 10**17  # below ~1973: a monotonic or sim clock, shown as a duration
+_TIME_MAX_NS = 2**63 - 1  # a timeline holds int64 ns; MCAP's log_time is uint64
 
 COLORS = {
     "troi": (255, 215, 0),
@@ -61,6 +64,7 @@ COLORS = {
 _CUSTOM = {TOPICS[k] for k in ("plan", "key_state", "detection", "regions", "energy", "igniter", "truth_mpoi", "tf")}
 # the schema each topic drawn here must carry: another one (a foreign or hand-made file) is skipped
 _SCHEMAS = {TOPICS[k]: f"capm.log.{v}" for k, v in PROTO_TOPICS.items()} | {TOPICS["tf"]: "foxglove.FrameTransforms"}
+_OURS = {TOPICS[k]: v for k, v in PROTO_TOPICS.items()}  # topic -> our message name
 
 
 def _part(target_id: str) -> str:
@@ -77,10 +81,48 @@ class RunData:
     messages: dict[str, list] = field(default_factory=lambda: defaultdict(list))  # topic -> [(t, msg)]
     body_path: list[tuple[float, float, float]] = field(default_factory=list)
     report: ReadReport = field(default_factory=ReadReport)
+    bad_times: int = 0  # messages skipped because their log_time is past what a timeline holds
+    bad_time_note: str | None = None  # the first of them
+
+
+def _descriptor_problem(theirs: Any, ours: Any, seen: set[str] | None = None) -> str | None:
+    """Why a message decoded with the file's descriptor `theirs` cannot be read as our `ours`
+    (a field is missing, or of another type or cardinality), else None. A hand-made or foreign
+    file may name our schema with other fields: reading them would crash. All our fields are
+    required: the schema has not changed since the first run log (a change would relax this)."""
+    seen = set() if seen is None else seen
+    if ours.full_name in seen:
+        return None
+    seen.add(ours.full_name)
+    for f in ours.fields:
+        g = theirs.fields_by_name.get(f.name)
+        if g is None:
+            return f"its {theirs.full_name} has no field {f.name}"
+        if g.type != f.type or g.is_repeated != f.is_repeated:
+            return f"its {theirs.full_name}.{f.name} is of another type than ours"
+        if f.message_type is not None:
+            why = _descriptor_problem(g.message_type, f.message_type, seen)
+            if why:
+                return why
+    return None
+
+
+def _body_poses(msg: Any) -> list[tuple[float, float, float]]:
+    """field→body translations of a FrameTransforms message; TypeError/AttributeError when the
+    file's FrameTransforms is not Foxglove's (checked here rather than against a descriptor)."""
+    out = []
+    for tf in msg.transforms:
+        if tf.parent_frame_id == "field" and tf.child_frame_id == "body":
+            p = (tf.translation.x, tf.translation.y, tf.translation.z)
+            if not all(isinstance(v, float) for v in p):
+                raise TypeError("translation is not three doubles")
+            out.append(p)
+    return out
 
 
 def load_run(path: Path) -> RunData:
     data = RunData()
+    checked: dict[Any, str | None] = {}  # decoded descriptor -> why it is not ours (None: it is)
     for m in iter_run(path, report=data.report):
         want = _SCHEMAS.get(m.topic)
         if want and m.schema != want:
@@ -89,14 +131,28 @@ def load_run(path: Path) -> RunData:
         if want and isinstance(m.data, (bytes, str)):  # an encoding with no decoder here (json, ...)
             data.report.skip(m.topic, f"{want} in an encoding other than protobuf")
             continue
-        data.first_ns = m.log_time if data.first_ns is None else min(data.first_ns, m.log_time)
-        data.last_ns = m.log_time if data.last_ns is None else max(data.last_ns, m.log_time)
+        if m.topic in _OURS:
+            desc = m.data.DESCRIPTOR
+            if desc not in checked:
+                checked[desc] = _descriptor_problem(desc, message_class(_OURS[m.topic]).DESCRIPTOR)
+            if checked[desc]:
+                data.report.skip(m.topic, f"{want} with another descriptor: {checked[desc]}")
+                continue
+        if m.log_time > _TIME_MAX_NS:  # np.datetime64 / Rerun timelines are int64 ns
+            data.bad_times += 1
+            data.bad_time_note = data.bad_time_note or f"{m.topic} at log_time {m.log_time}"
+            continue
         if m.topic == TOPICS["tf"]:
-            for tf in m.data.transforms:
-                if tf.parent_frame_id == "field" and tf.child_frame_id == "body":
-                    data.body_path.append((tf.translation.x, tf.translation.y, tf.translation.z))
+            try:
+                poses = _body_poses(m.data)
+            except (AttributeError, TypeError) as e:
+                data.report.skip(m.topic, f"{want} with other fields: {type(e).__name__}: {e}")
+                continue
+            data.body_path.extend(poses)
         elif m.topic in _CUSTOM:
             data.messages[m.topic].append((m.log_time, m.data))
+        data.first_ns = m.log_time if data.first_ns is None else min(data.first_ns, m.log_time)
+        data.last_ns = m.log_time if data.last_ns is None else max(data.last_ns, m.log_time)
     if data.report.messages == 0:
         why = f": {data.report.error}" if data.report.error else ""
         raise UserError(f"no readable messages in {path}{why}")
@@ -253,32 +309,59 @@ def _urdf_package_path() -> str | None:
 
 
 def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
-    """Convert the run to an .rrd: native MCAP import + our archetypes + blueprint."""
+    """Convert the run to an .rrd: native MCAP import + our archetypes + blueprint.
+
+    Written to a temporary file beside `out` and renamed over it only once complete, so a
+    review that fails half-way leaves an existing `out` (a good earlier .rrd) as it was."""
     data = data or load_run(mcap)
     duration = (data.first_ns or 0) < _DURATION_LIMIT_NS
     pkg = _urdf_package_path()
     if pkg and "ROS_PACKAGE_PATH" not in os.environ:
         os.environ["ROS_PACKAGE_PATH"] = pkg
     out.parent.mkdir(parents=True, exist_ok=True)
+    # same directory: the rename is atomic; Rerun creates the file itself (umask permissions)
+    part = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.part")
     rec = rr.RecordingStream("capm_field_review", recording_id=str(uuid.uuid4()))
-    rec.save(str(out), default_blueprint=blueprint())
-    with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
-        source = mcap
-        if not data.report.complete or data.report.bad_chunks:
-            # A crash file: Rerun's own recovery (recover=True) drops channels whose message index
-            # was torn, so hand it a finalised copy of exactly what our streaming reader read.
-            source = Path(tmp) / "salvaged.mcap"
-            salvage(mcap, source)
-        try:
-            reader = McapReader(str(source), recover=True, timeline_type="duration_ns" if duration else "timestamp_ns")
-            rr.send_chunks(reader.stream(), recording=rec)
-        except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
-            raise UserError(f"Rerun cannot read {mcap}: {e}") from e
-    rec.send_recording_name(mcap.parent.name + "/" + mcap.name)
-    log_extras(rec, data, duration)
-    rec.flush()
-    rec.disconnect()
+    try:
+        rec.save(str(part), default_blueprint=blueprint())
+        with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
+            source = mcap
+            if not data.report.complete or data.report.damaged:
+                # A crash or damaged file: Rerun's own recovery (recover=True) drops channels whose
+                # message index was torn, so hand it a finalised copy of exactly what our reader read.
+                source = Path(tmp) / "salvaged.mcap"
+                salvage(mcap, source)
+            try:
+                reader = McapReader(str(source), recover=True, timeline_type="duration_ns" if duration else "timestamp_ns")
+                rr.send_chunks(reader.stream(), recording=rec)
+            except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
+                raise UserError(f"Rerun cannot read {mcap}: {e}") from e
+        rec.send_recording_name(mcap.parent.name + "/" + mcap.name)
+        log_extras(rec, data, duration)
+        rec.flush()
+        rec.disconnect()
+        os.replace(part, out)
+    except BaseException:  # incl. Ctrl-C: the partial recording goes, `out` is untouched
+        rec.disconnect()
+        part.unlink(missing_ok=True)
+        raise
     return data
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether `a` and `b` name one file (symlinks, hard links, `..`), without opening either."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one does not exist (yet): compare where the paths lead
+        return a.resolve() == b.resolve()
+
+
+def _check_rrd_is_not_the_log(run: str, rrd: Path) -> None:
+    """--rrd naming the run log itself (or the run directory's run.mcap) would overwrite the log."""
+    p = Path(run)
+    log = p / "run.mcap" if p.is_dir() else p
+    if log.exists() and _same_file(log, rrd):  # (a missing log: check_mcap says so)
+        raise UserError(f"--rrd {rrd} is the run log being reviewed ({log}); name another file")
 
 
 # ---- viewers -----------------------------------------------------------------------------------
@@ -317,25 +400,36 @@ def _run_child(cmd: list[str]) -> int:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="capm-field review", description=__doc__.splitlines()[0])
     ap.add_argument("run", help="run log (run.mcap) or its run directory, also one cut short by a crash")
-    ap.add_argument("--rrd", type=Path, help="write a Rerun recording to this file (headless, no viewer)")
+    ap.add_argument("--rrd", help="write a Rerun recording to this file (headless, no viewer)")
     ap.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of the native viewer")
     ap.add_argument("--web-port", type=int, default=9090, help="HTTP port of the web viewer (default 9090)")
     ap.add_argument("--grpc-port", type=int, default=9876, help="gRPC port the web viewer reads from (default 9876)")
     args = ap.parse_args(argv)
 
+    if args.rrd is not None:
+        if not args.rrd:  # Path("") would be ".", the current directory
+            raise UserError("--rrd: empty file name")
+        args.rrd = Path(args.rrd)
+        _check_rrd_is_not_the_log(args.run, args.rrd)  # before anything is opened
     mcap = check_mcap(args.run)
     check_output(str(args.rrd) if args.rrd else None, "--rrd")  # before the read, not after it
     native = not args.rrd and not args.web
     if native and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise UserError("no display for the native viewer (DISPLAY/WAYLAND_DISPLAY unset): use --rrd FILE or --web")
     data = load_run(mcap)
-    if data.report.error:
-        print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {data.report.error}", file=sys.stderr)
-    if data.report.bad_chunks:
-        print(f"capm-field review: note: {mcap} is damaged: {data.report.damage_note()}", file=sys.stderr)
-    if data.report.undecodable:
-        print(f"capm-field review: note: {data.report.undecodable} message(s) skipped, not readable as this run log's "
-              f"(first: {data.report.undecodable_note})", file=sys.stderr)
+    rep = data.report
+    if rep.error and not rep.has_summary:
+        print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {rep.error}", file=sys.stderr)
+    elif rep.error:  # a closed file (valid summary) whose read stopped early: damage, not a crash
+        print(f"capm-field review: note: {mcap} is damaged; showing what was readable: {rep.error}", file=sys.stderr)
+    if rep.damage_note():
+        print(f"capm-field review: note: {mcap} is damaged: {rep.damage_note()}", file=sys.stderr)
+    if rep.undecodable:
+        print(f"capm-field review: note: {rep.undecodable} message(s) skipped, not readable as this run log's "
+              f"(first: {rep.undecodable_note})", file=sys.stderr)
+    if data.bad_times:
+        print(f"capm-field review: note: {data.bad_times} message(s) skipped, log_time past 2**63 - 1 ns, "
+              f"beyond a Rerun timeline (first: {data.bad_time_note})", file=sys.stderr)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
         print(f"wrote {args.rrd} ({data.report.messages} messages)")

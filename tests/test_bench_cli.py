@@ -1,6 +1,8 @@
 import json
+import math
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -68,6 +70,14 @@ def test_bench_cli_json(tmp_path):
         (["bench-fields", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
         (["bench-perception", "--scenes", "1", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
         (["bench-perception", "--scenes", "x"], "--scenes: invalid int value"),
+        # nan passed `v <= 0` (an AssertionError, an OverflowError), inf printed inf rows
+        (["bench", "--trials", "2", "--lengths", "nan"], "--lengths must be positive finite numbers"),
+        (["bench-fields", "--densities", "nan"], "--densities must be positive finite numbers"),
+        (["bench-fields", "--densities", "1,inf"], "--densities must be positive finite numbers"),
+        (["bench", "--trials", "2", "--lengths", "1e300"], "--lengths must be positive finite numbers ≤ 1e+06"),
+        # an empty file name was taken for "not given"; a file where a directory should be
+        (["bench-mission", "mission/examples/bench_demo.yaml", "--trials", "2", "--json", ""], "--json: empty file name"),
+        (["bench", "--trials", "2", "--json", f"{__file__}/x.json"], f"{__file__} is a file, not a directory"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(args, needle):
@@ -76,3 +86,122 @@ def test_bad_input_is_one_line_exit_2(args, needle):
     assert needle in r.stderr
     assert "Traceback" not in r.stderr
     assert len([ln for ln in r.stderr.splitlines() if "error" in ln]) == 1
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--resolution", "0"], "--resolution must be in [0.001, 0.1] m"),  # was ZeroDivisionError
+        (["--resolution", "-0.01"], "--resolution must be in [0.001, 0.1] m"),  # was IndexError
+        (["--resolution", "1e-9"], "--resolution must be in [0.001, 0.1] m"),  # was a 25 GiB raster
+        (["--resolution", "nan"], "--resolution must be in [0.001, 0.1] m"),
+        (["--resolution", "0.001"], "cells across (limit 2000)"),
+        (["--mpoi-offset", "nan"], "--mpoi-offset must be a finite distance"),  # was a PNG without R_m
+        (["--mpoi-offset", "inf"], "--mpoi-offset must be a finite distance"),
+    ],
+)
+def test_regions_refuses_a_bad_raster_before_drawing(tmp_path, args, needle):
+    out = tmp_path / "r.png"
+    r = subprocess.run(CLI + ["regions", "--out", str(out)] + args, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not out.exists()
+
+
+def test_bench_mission_help_has_its_whole_description():
+    r = subprocess.run(CLI + ["bench-mission", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0
+    assert "the planner bench on a mission's own geometry, to check a run against it." in " ".join(r.stdout.split())
+
+
+# ---- bench-mission against a real run of the same mission ------------------------------------------
+TINY = """\
+name: tiny
+planner: c
+task: {{xi: 0.5}}
+field:
+  trois:
+    - {{id: A, x: 1.0, y: 0.3, r: 0.22}}
+    - {{id: B, x: 2.0, y: 0.8, r: 0.25}}
+start: {{x: 0.0, y: 0.0, yaw: 0.0}}
+end: {{x: 2.5, y: 1.0}}
+drivers: {{kind: bench, seed: 5}}
+output: {{dir: {out}, images: false}}
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory) -> tuple[Path, Path]:
+    """(mission file, summary.json) of a two-weed `capm-field run` on the bench (~3 s)."""
+    d = tmp_path_factory.mktemp("tiny")
+    mission = d / "tiny.yaml"
+    mission.write_text(TINY.format(out=d / "out"))
+    r = subprocess.run(CLI + ["run", str(mission), "--quiet"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    summary = d / "out" / "summary.json"
+    assert any(t["flamed"] for t in json.loads(summary.read_text())["targets"])
+    return mission, summary
+
+
+def test_bench_mission_compares_a_real_run_of_the_mission(tiny_run, tmp_path):
+    """--summary always crashed (a loop variable overwrote the summary: TypeError)."""
+    mission, summary = tiny_run
+    out = tmp_path / "b.json"
+    r = subprocess.run(CLI + ["bench-mission", str(mission), "--trials", "4", "--summary", str(summary), "--json", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    run = json.loads(summary.read_text())
+    flamed = [t for t in run["targets"] if t["flamed"]]
+    assert f"({len(flamed)}/2 flamed)" in r.stdout and "run:   energy per flamed weed" in r.stdout
+    res = json.loads(out.read_text())
+    assert [t["id"] for t in res["targets"]] and {t["id"] for t in res["targets"]} == {"A", "B"}
+    assert res["run_energy_per_weed"] == pytest.approx(sum(t["energy"] for t in flamed) / len(flamed))
+    assert res["run_success_rate"] == run["success_rate"]
+
+
+def _set(path: list, value):
+    """An edit of a summary: set (or, with value ..., delete) the entry at `path`."""
+    def edit(s: dict) -> None:
+        for k in path[:-1]:
+            s = s[k]
+        if value is ...:
+            del s[path[-1]]
+        else:
+            s[path[-1]] = value
+    return edit
+
+
+def _other_mission(s: dict) -> None:
+    s["name"] = "elsewhere"
+    for t in s["targets"]:
+        t["id"] = "X" + t["id"]
+
+
+@pytest.mark.parametrize(
+    "edit, needle",
+    [
+        (_set(["targets", 0, "energy"], ...), "energy is missing"),  # was KeyError after the bench
+        (_set(["targets", 0, "energy"], "4.2"), "energy must be a finite number in [0, inf], got '4.2'"),  # numpy TypeError
+        (_set(["targets", 0, "energy"], math.nan), "energy must be a finite number in [0, inf], got nan"),
+        (_set(["targets", 0, "energy"], True), "energy must be a finite number in [0, inf], got True"),
+        (_set(["success_rate"], ...), "success_rate is missing"),
+        (_set(["success_rate"], 2), "success_rate must be a finite number in [0, 1], got 2"),
+        (_set(["targets", 0, "flamed"], "yes"), "is not a target with an id and flamed"),
+        (_set(["targets"], {}), "no list of targets"),
+        # another mission's summary matched no id: "the run flamed no target"
+        (_other_mission, "is from another mission: its 2 target(s), of mission 'elsewhere'"),
+        (_set(["targets"], []), "is from another mission: its 0 target(s)"),
+    ],
+)
+def test_bench_mission_refuses_a_bad_summary_in_one_line_before_the_bench(tiny_run, tmp_path, edit, needle):
+    mission, summary = tiny_run
+    s = json.loads(summary.read_text())
+    s["targets"][0]["flamed"] = True
+    edit(s)
+    bad = tmp_path / "summary.json"
+    bad.write_text(json.dumps(s))
+    r = subprocess.run(CLI + ["bench-mission", str(mission), "--trials", "2", "--summary", str(bad)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not r.stdout  # refused before the bench printed anything
+    if edit is _other_mission:
+        assert "this mission 'tiny'" in r.stderr and str(mission) in r.stderr
