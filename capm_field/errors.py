@@ -2,10 +2,28 @@
 
 import os
 from pathlib import Path
+from typing import Any
+
+SHOWN = 80  # characters of a bad value quoted in an error line
 
 
 class UserError(Exception):
     """A bad input (file, value, option) — reported as one clear line naming the value, exit 2."""
+
+
+def shown(value: Any, limit: int = SHOWN) -> str:
+    """A bad value for an error line: its repr cut to about `limit` characters (a 200 kB value was
+    echoed whole). An integer of over 1 000 bits is described by its size: a CBOR or JSON bignum of
+    thousands of digits has no decimal text within Python's int-to-text limit."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 1000:
+        return f"<an integer of {value.bit_length()} bits>"
+    if isinstance(value, str) and len(value) > limit:
+        return f"{value[:limit]!r}…"
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 - any value a decoder can make must be describable
+        return f"<a {type(value).__name__}>"
+    return text if len(text) <= limit + 2 else text[:limit] + "…"
 
 
 def check_output(path: str | None, option: str) -> None:

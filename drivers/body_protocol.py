@@ -19,6 +19,7 @@ from typing import Any, Mapping
 
 import cbor2
 
+from capm_field.errors import shown
 from capm_field.geometry import FIELD_EXTENT_M
 
 VERSION = 1
@@ -100,18 +101,6 @@ SCHEMAS: dict[str, dict[str, tuple[str, bool]]] = {
     "feedback": {"t_ns": ("int", True), "cmd_id": ("int", True), "status": ("status", True),
                  "reason": ("str?", False), "pose": ("pose", True)},
 }
-
-
-def shown(value: Any, limit: int = 60) -> str:
-    """A peer's value for an error detail: its repr cut to `limit` characters (a CBOR bignum of
-    thousands of digits has no repr within Python's int-to-text limit: its size is shown)."""
-    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
-        return f"<an integer of {value.bit_length()} bits>"
-    try:
-        text = repr(value)
-    except Exception:  # noqa: BLE001 - any value a decoder can make must be describable
-        return f"<a {type(value).__name__}>"
-    return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def one_line(detail: str, limit: int = TEXT_MAX) -> str:

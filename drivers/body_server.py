@@ -416,7 +416,8 @@ class BodyServer:
     def _holder_session(self, client: str, token: str | None) -> bool:
         """Whether a CheckIn may count as `client`'s: any client's, except under the lease holder's id
         (public in State.lease_holder), where it must carry the holder's token, or no token from a
-        holder that has never sent one in this lease (clients written before CheckIn's `lease`)."""
+        holder that has never sent one in this lease (clients written before CheckIn's `lease`).
+        A CheckIn with the token also records that the holder sends it (from then on it must)."""
         lease = self._lease
         if lease is None or client != lease[0]:
             return True

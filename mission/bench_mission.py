@@ -21,12 +21,12 @@ import numpy as np
 
 from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
-from capm_field.errors import UserError, check_output, write_output
+from capm_field.errors import UserError, check_output, shown, write_output
 from capm_field.planners import PlanningCore, make_planner
 from capm_field.reachability import get_maps
 from capm_field.robot_model import RobotModel
 
-from .config import Mission, load_mission, shown
+from .config import Mission, load_mission
 from .ordering import order_trois, x_kmax
 
 

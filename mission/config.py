@@ -23,7 +23,7 @@ import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from capm_field.config import RobotConfig, StrictNumbers, TaskConfig, not_bool
-from capm_field.errors import UserError
+from capm_field.errors import UserError, shown
 from capm_field.geometry import FIELD_EXTENT_M as FIELD_EXTENT
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
@@ -37,7 +37,6 @@ MAX_TIMEOUT_S = 3600.0
 # (a prescan tool's "W 12" or "plot A/3" too), not starting or ending with a space
 TROI_ID_RE = re.compile(r"^(?=.{1,64}\Z)[^\x00-\x20\x7f-\x9f](?:[^\x00-\x1f\x7f-\x9f]*[^\x00-\x20\x7f-\x9f])?\Z")
 NAME_RE = re.compile(r"^(?=.{1,128}\Z)[^\x00-\x20\x7f-\x9f](?:[^\x00-\x1f\x7f-\x9f]*[^\x00-\x20\x7f-\x9f])?\Z")
-SHOWN = 80  # characters of a bad value quoted in an error line
 LEG_MARGIN = 0.8  # a leg of the visit may take at most this share of the body's move timeout
 
 
@@ -71,14 +70,6 @@ class Pose(_Strict):
 
     def se2(self) -> SE2:
         return SE2(self.x, self.y, self.yaw)
-
-
-def shown(v: Any) -> str:
-    """repr of a value for an error line, cut to about SHOWN characters (a 200 kB value was echoed whole)."""
-    if isinstance(v, str) and len(v) > SHOWN:
-        return f"{v[:SHOWN]!r}…"
-    r = repr(v)
-    return r if len(r) <= SHOWN + 2 else r[:SHOWN] + "…"
 
 
 def _troi_id(v: str | None) -> str | None:

@@ -31,7 +31,7 @@ from capm_field.planners import BasePlanner, PlanningCore
 from capm_field.reachability import FlameSolver
 from drivers.interfaces import DriverError, DriverSet, DriverTimeout, EStopActive, LinkLost
 
-from .config import FUEL_MARGIN, FUEL_RESERVE, hold_fuel, holds_left
+from .config import FUEL_RESERVE, hold_fuel, holds_left
 from .interlock import IgnitionInterlock
 from .ordering import order_trois
 from .ordering import x_kmax as x_kmax_of
@@ -467,8 +467,6 @@ class Executive:
             self._safe()
             self.d.igniter.disarm()
             self._igniter_state(il)
-
-    FUEL_MARGIN = FUEL_MARGIN  # × the expected fuel of one ξ hold (`mission.config.hold_fuel`, which validate uses too)
 
     def _fuel_need(self) -> float:
         """Tank fraction one ξ hold is expected to burn (0 while no rate is known)."""

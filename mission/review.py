@@ -63,8 +63,8 @@ COLORS = {
 }
 _CUSTOM = {TOPICS[k] for k in ("plan", "key_state", "detection", "regions", "energy", "igniter", "truth_mpoi", "tf")}
 # the schema each topic drawn here must carry: another one (a foreign or hand-made file) is skipped
-_SCHEMAS = {TOPICS[k]: f"capm.log.{v}" for k, v in PROTO_TOPICS.items()} | {TOPICS["tf"]: "foxglove.FrameTransforms"}
 _OURS = {TOPICS[k]: v for k, v in PROTO_TOPICS.items()}  # topic -> our message name
+_SCHEMAS = {t: f"capm.log.{v}" for t, v in _OURS.items()} | {TOPICS["tf"]: "foxglove.FrameTransforms"}
 
 
 def _part(target_id: str) -> str:
@@ -81,8 +81,6 @@ class RunData:
     messages: dict[str, list] = field(default_factory=lambda: defaultdict(list))  # topic -> [(t, msg)]
     body_path: list[tuple[float, float, float]] = field(default_factory=list)
     report: ReadReport = field(default_factory=ReadReport)
-    bad_times: int = 0  # messages skipped because their log_time is past what a timeline holds
-    bad_time_note: str | None = None  # the first of them
 
 
 def _descriptor_problem(theirs: Any, ours: Any, seen: set[str] | None = None) -> str | None:
@@ -139,8 +137,7 @@ def load_run(path: Path) -> RunData:
                 data.report.skip(m.topic, f"{want} with another descriptor: {checked[desc]}")
                 continue
         if m.log_time > _TIME_MAX_NS:  # np.datetime64 / Rerun timelines are int64 ns
-            data.bad_times += 1
-            data.bad_time_note = data.bad_time_note or f"{m.topic} at log_time {m.log_time}"
+            data.report.skip(m.topic, f"log_time {m.log_time} past 2**63 - 1 ns, beyond a Rerun timeline")
             continue
         if m.topic == TOPICS["tf"]:
             try:
@@ -427,9 +424,6 @@ def main(argv: list[str] | None = None) -> int:
     if rep.undecodable:
         print(f"capm-field review: note: {rep.undecodable} message(s) skipped, not readable as this run log's "
               f"(first: {rep.undecodable_note})", file=sys.stderr)
-    if data.bad_times:
-        print(f"capm-field review: note: {data.bad_times} message(s) skipped, log_time past 2**63 - 1 ns, "
-              f"beyond a Rerun timeline (first: {data.bad_time_note})", file=sys.stderr)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
         print(f"wrote {args.rrd} ({data.report.messages} messages)")

@@ -330,11 +330,16 @@ def _iter_records(path: Path, report: ReadReport, summary: _Summary | None) -> I
             pos = end
 
 
+def _tables(summary: _Summary | None) -> tuple[dict[int, Schema], dict[int, Channel]]:
+    """The schemas and channels to start a read with (the records met in the chunks are added):
+    a closed file's summary repeats them, so messages of a channel whose record sat in a damaged
+    chunk can still be decoded; a crash file has none."""
+    return (dict(summary.schemas), dict(summary.channels)) if summary else ({}, {})
+
+
 def _iter_raw(path: Path, topics: set[str] | None, report: ReadReport) -> Iterator[tuple[Schema | None, Channel, Message]]:
-    # the summary's schemas and channels repeat the records inside the chunks, so messages of a
-    # channel whose record sat in a damaged chunk can still be decoded
     summary = _read_summary(path)
-    schemas, channels = (dict(summary.schemas), dict(summary.channels)) if summary else ({}, {})
+    schemas, channels = _tables(summary)
     for rec in _iter_records(path, report, summary):
         if isinstance(rec, Schema):
             schemas[rec.id] = rec
@@ -392,7 +397,7 @@ def salvage(src: str | Path, dst: str | Path) -> ReadReport:
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, int] = {}
         summary = _read_summary(p)
-        schemas, channels = (dict(summary.schemas), dict(summary.channels)) if summary else ({}, {})
+        schemas, channels = _tables(summary)
         for rec in _iter_records(p, report, summary):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec

@@ -151,7 +151,7 @@ def test_log_times_past_int64_are_skipped_with_a_note(tmp_path, capsys, t):
     p = _write(tmp_path / "t.mcap", [("/energy", "capm.log.Energy", descriptor_set_bytes(), [(T0, e), (t, e)])])
     rc, err = _review(p, tmp_path / "o.rrd", capsys)
     assert rc == 0, err
-    assert "1 message(s) skipped, log_time past 2**63 - 1 ns" in err and str(t) in err, err
+    assert "1 message(s) skipped" in err and f"log_time {t} past 2**63 - 1 ns" in err, err
 
 
 # ---- 6. an unknown opcode where a record is expected ----------------------------------------------
