@@ -10,7 +10,8 @@ from typing import Callable
 
 import pytest
 
-from drivers.interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost
+from drivers.interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, LinkLost, MoveResult
+from keepalive_evidence import IgniteGaps
 from sim_bench.sim_igniter import IgniterBoard, SimIgniterDriver
 
 
@@ -22,6 +23,27 @@ class Rig:
     lose_link: Callable[[], None]
     settle: Callable[[], None]
     stall: Callable[[float], None]  # the host stops for s seconds (simulated or real time)
+    gaps: "IgniteGaps | None" = None  # wire only: bus evidence of our host's keep-alive gaps
+
+
+def _retrying(rig: Rig, attempt: Callable[[], MoveResult], asked: Callable[[], bool] = lambda: False,
+              tries: int = 3) -> MoveResult:
+    """attempt() (one ignite()), again after ARM when it ended in a `keepalive_timeout` the test
+    did not ask for (`asked()` false: no stall under test happened) and the bus shows our host
+    silent for longer than the board's timeout (this process descheduled on a loaded machine). A
+    trip with the keep-alives on time fails. In process the clock is simulated: nothing stalls
+    unasked, so no retry."""
+    for _ in range(tries):
+        if rig.gaps is not None:
+            rig.gaps.clear()
+        r = attempt()
+        if rig.gaps is None or r.reason != "keepalive_timeout" or asked():
+            return r
+        silence = rig.gaps.host_silence()
+        assert silence > rig.board.p.keepalive_timeout, (r, silence)
+        rig.settle()
+        rig.ign.arm(timeout=1.0)
+    return r
 
 
 @pytest.fixture(params=["inprocess", "can"])
@@ -54,9 +76,11 @@ def rig(request):
             stamp = bench.igniter.state().stamp_ns
             seen, last = seen + (stamp != last), stamp
 
+    gaps = IgniteGaps(bench.bus)
     try:
-        yield Rig(bench.igniter, rs.board, time.monotonic, lose, settle, time.sleep)
+        yield Rig(bench.igniter, rs.board, time.monotonic, lose, settle, time.sleep, gaps)
     finally:
+        gaps.close()
         bench.close()
 
 
@@ -78,7 +102,7 @@ def test_ignite_refused_when_not_armed(rig):
 def test_arm_ignite_hold_then_off(rig):
     rig.ign.arm(timeout=1.0)
     assert rig.ign.state().armed
-    r = rig.ign.ignite(0.3, ALWAYS, timeout=2.0)
+    r = _retrying(rig, lambda: rig.ign.ignite(0.3, ALWAYS, timeout=2.0))
     assert r.ok, r
     assert 0.3 <= r.extra["flame_s"] < 0.45
     assert not rig.board.flame_on and not rig.board.valve_open  # off when ignite() returns
@@ -95,19 +119,43 @@ def test_permit_false_never_lights(rig):
 
 
 def test_permit_drop_extinguishes(rig):
-    rig.ign.arm(timeout=1.0)
-    t_drop = rig.now() + 0.3  # after the flame is lit (light delay 0.12 s)
-    r = rig.ign.ignite(1.0, lambda: rig.now() < t_drop, timeout=2.0)
-    assert not r.ok and r.reason == "permit_dropped"
-    assert 0.0 < r.extra["flame_s"] < 1.0
-    assert not rig.board.flame_on and not rig.board.valve_open
-    assert rig.board.flame_off_at - t_drop < 0.05  # off within 50 ms of the permit dropping
+    drop: list[float] = []
+    seen: list[float] = []  # when ignite() first found the permit dropped
+
+    def permit() -> bool:
+        if rig.now() < drop[0]:
+            return True
+        if not seen:
+            seen.append(rig.now())
+        return False
+
+    def attempt() -> MoveResult:
+        seen.clear()
+        drop[:] = [rig.now() + 0.3]  # after the flame is lit (light delay 0.12 s)
+        return rig.ign.ignite(1.0, permit, timeout=2.0)
+
+    late = []
+    for _ in range(3):
+        rig.ign.arm(timeout=1.0)
+        r = _retrying(rig, attempt)
+        assert not r.ok and r.reason == "permit_dropped", r
+        assert 0.0 < r.extra["flame_s"] < 1.0
+        assert not rig.board.flame_on and not rig.board.valve_open
+        # once ignite() sees the drop, the valve shuts at once (board and driver)
+        assert rig.board.flame_off_at - seen[0] < 0.05, (rig.board.flame_off_at - seen[0], seen[0] - drop[0])
+        late.append(seen[0] - drop[0])
+        # ignite() re-checks permit() every 5 ms: seen within 20 ms unless this thread was descheduled
+        if rig.board.flame_off_at - drop[0] < 0.05 or late[-1] < 0.02:
+            break
+    # off within 50 ms of the permit dropping; only a drop seen late by the host thread is retried
+    # (seen late three times in a row: a driver that stopped polling permit() fails)
+    assert rig.board.flame_off_at - drop[0] < 0.05, late
 
 
 def test_ignition_failure_latches_until_reset(rig):
     rig.board.hooks.fail_to_light = True
     rig.ign.arm(timeout=1.0)
-    r = rig.ign.ignite(0.3, ALWAYS, timeout=2.0)
+    r = _retrying(rig, lambda: rig.ign.ignite(0.3, ALWAYS, timeout=2.0))
     assert not r.ok and r.reason == "ignition_failed" and r.extra["flame_s"] == 0.0
     assert not rig.board.valve_open
     rig.settle()
@@ -117,14 +165,15 @@ def test_ignition_failure_latches_until_reset(rig):
     rig.board.hooks.fail_to_light = False
     rig.ign.reset_fault(timeout=1.0)
     rig.ign.arm(timeout=1.0)
-    assert rig.ign.ignite(0.2, ALWAYS, timeout=2.0).ok
+    r = _retrying(rig, lambda: rig.ign.ignite(0.2, ALWAYS, timeout=2.0))
+    assert r.ok, r
 
 
 def test_flame_out_mid_hold(rig):
     rig.board.hooks.flame_out_after = 0.1
     rig.ign.arm(timeout=1.0)
-    r = rig.ign.ignite(0.5, ALWAYS, timeout=2.0)
-    assert not r.ok and r.reason == "flame_out"
+    r = _retrying(rig, lambda: rig.ign.ignite(0.5, ALWAYS, timeout=2.0))
+    assert not r.ok and r.reason == "flame_out", r
     assert 0.05 < r.extra["flame_s"] < 0.3
     assert not rig.board.flame_on
 
@@ -132,8 +181,8 @@ def test_flame_out_mid_hold(rig):
 def test_fuel_runs_out(rig):
     rig.board.fuel = 0.1 / 600.0  # 0.1 s of flame left
     rig.ign.arm(timeout=1.0)
-    r = rig.ign.ignite(0.5, ALWAYS, timeout=2.0)
-    assert not r.ok and r.reason == "fuel_empty"
+    r = _retrying(rig, lambda: rig.ign.ignite(0.5, ALWAYS, timeout=2.0))
+    assert not r.ok and r.reason == "fuel_empty", r
     rig.settle()
     st = rig.ign.state()
     assert st.fault == "fuel_empty" and st.fuel == 0.0 and not st.flame_on
@@ -142,7 +191,8 @@ def test_fuel_runs_out(rig):
 def test_timeout_raises_and_flame_is_off(rig):
     rig.ign.arm(timeout=1.0)
     with pytest.raises(DriverTimeout):
-        rig.ign.ignite(1.0, ALWAYS, timeout=0.3)
+        r = _retrying(rig, lambda: rig.ign.ignite(1.0, ALWAYS, timeout=0.3))
+        pytest.fail(f"no DriverTimeout: {r}")
     assert not rig.board.flame_on and not rig.board.valve_open
 
 
@@ -185,7 +235,11 @@ def test_a_host_stall_is_not_counted_as_flame(rig):
             rig.stall(0.15)
         return True
 
-    r = rig.ign.ignite(0.3, permit, timeout=3.0)
+    def attempt() -> MoveResult:
+        lit.clear()
+        return rig.ign.ignite(0.3, permit, timeout=3.0)
+
+    r = _retrying(rig, attempt, asked=lambda: bool(stalled))  # a trip before the stall under test
     assert stalled and not r.ok and r.reason == "keepalive_timeout", r
     burnt = rig.board.flame_off_at - rig.board._flame_start  # the board's own account
     assert 0.0 < r.extra["flame_s"] <= burnt + 1e-6, (r.extra["flame_s"], burnt)
@@ -199,16 +253,20 @@ def test_keepalive_gap_ends_ignite_disarmed_and_never_rearms(rig, phase):
     and says why; burning again needs arm()."""
     rig.ign.arm(timeout=1.0)
     stalled = []
-    t0 = rig.now()
+    t0 = [rig.now()]
 
     def permit() -> bool:
-        ready = rig.ign.state().flame_on if phase == "burning" else rig.now() - t0 > 0.04
+        ready = rig.ign.state().flame_on if phase == "burning" else rig.now() - t0[0] > 0.04
         if ready and not stalled:
             stalled.append(True)
             rig.stall(0.15)  # > 80 ms keep-alive timeout
         return True
 
-    r = rig.ign.ignite(1.0, permit, timeout=3.0)
+    def attempt() -> MoveResult:
+        t0[0] = rig.now()
+        return rig.ign.ignite(1.0, permit, timeout=3.0)
+
+    r = _retrying(rig, attempt, asked=lambda: bool(stalled))  # a trip before the stall under test
     assert stalled and not r.ok and r.reason == "keepalive_timeout", r
     assert not rig.board.flame_on and not rig.board.valve_open and not rig.board.armed
     rig.settle()
@@ -216,4 +274,5 @@ def test_keepalive_gap_ends_ignite_disarmed_and_never_rearms(rig, phase):
     r = rig.ign.ignite(0.2, ALWAYS, timeout=1.0)  # no re-arm behind the caller's back
     assert not r.ok and r.reason == "not_armed" and not rig.board.valve_open
     rig.ign.arm(timeout=1.0)
-    assert rig.ign.ignite(0.2, ALWAYS, timeout=2.0).ok
+    r = _retrying(rig, lambda: rig.ign.ignite(0.2, ALWAYS, timeout=2.0))
+    assert r.ok, r
