@@ -129,8 +129,9 @@ class ZenohBody(Body):
                 s.liveliness().declare_subscriber(self.keys.alive, self._on_alive, history=True),
             ]
             self._wait_connected(cfg.connect_timeout_s)
-            self._checkin(time.monotonic() + cfg.connect_timeout_s)  # releases the robot's E-stop
+            ack = self._checkin(time.monotonic() + cfg.connect_timeout_s)  # releases the robot's E-stop
             self._wait_connected(cfg.connect_timeout_s, after_ns=time.monotonic_ns())  # a state that shows it
+            self._wait_estop_shown(bool(ack.get("estop")), cfg.connect_timeout_s)
             self._bg = threading.Thread(target=self._background, name=f"zenoh-body-{self.client_id}", daemon=True)
             self._bg.start()
         except BaseException:
@@ -358,11 +359,26 @@ class ZenohBody(Body):
             msg["lease"] = self._lease
         return msg
 
-    def _checkin(self, deadline: float) -> None:
+    def _checkin(self, deadline: float) -> dict:
         ack = self._query(self.keys.estop_checkin, "checkin", self._checkin_msg(), deadline)
         # Spot's EstopKeepAlive checks in at a third of the timeout; a quarter leaves one more try.
         # (at least once a second: a robot side announcing an absurd timeout must not stop our check-ins)
         self._checkin_period_s = min(1.0, max(0.02, ack["timeout_ns"] * 1e-9 / 4))
+        return ack
+
+    def _wait_estop_shown(self, estop: bool, timeout: float) -> None:
+        """Wait (≤ timeout, never raises) for a State whose E-stop flag is the check-in reply's. A
+        State received after the reply may still have been read by the robot side before it
+        handled the check-in (its loop reads, then publishes): taken as the state at start, it
+        showed the E-stop engaged and a mission refused to start on a loaded machine."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._state is not None and bool(self._state["estop"]) != estop and self._lost is None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    log.warning("no state with estop=%s within %.1f s of the check-in reply", estop, timeout)
+                    return
+                self._cond.wait(min(remaining, 0.05))
 
     def _background(self) -> None:
         next_checkin = time.monotonic() + self._checkin_period_s

@@ -427,3 +427,28 @@ def test_frozen_sim_hook_is_link_lost_by_state_stall(port):
         finally:
             body.close()
             bench.sim.freeze(False)
+
+
+def test_the_state_at_start_shows_the_checkin_that_released_the_estop(port):
+    """The robot side's loop reads its state, then publishes it: a State published just after our
+    CheckIn's reply may have been read before the CheckIn released the E-stop. Here every publish
+    comes 30 ms after its read (a descheduled loop on a loaded machine): the client's state at start
+    must still show the release, or the mission refuses to start ("E-stop engaged")."""
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST) as bench:
+        pub = bench.server._state_pub
+
+        class LatePublisher:
+            def put(self, payload, *a, **k):
+                time.sleep(0.03)
+                return pub.put(payload, *a, **k)
+
+            def __getattr__(self, name):
+                return getattr(pub, name)
+
+        bench.server._state_pub = LatePublisher()
+        for _ in range(3):
+            body = ZenohBody(ZenohBodyConfig.loopback(port, RID))
+            try:
+                assert not body.state().estop, body.state()
+            finally:
+                body.close()
