@@ -220,6 +220,8 @@ def test_mtls_acl_only_the_commander_commands(pki):
             # (so the zeros above are the ACL's work, not a deaf harness).
             ctl = zenoh.open(tls_peer(pki, port, "capm-commander").zenoh_config())
             try:
+                # its link is up (a fixed 0.2 s was little on a loaded machine), and a little more for routes
+                assert wait_for(lambda: "capm-commander" in {a["auth"] for a in srv.peers.values()}, 5.0), srv.peers
                 time.sleep(0.2)
                 r = attack(ctl, victim="nobody")
                 assert r["ok"] + r["err"] >= 7, r
