@@ -22,6 +22,7 @@ from drivers.body_protocol import LinkConfig
 from drivers.can.codec import IGN_ARM, IGN_IGNITE, Encoder, Receiver, frame_checksum
 from drivers.interfaces import DriverError
 from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
+from keepalive_evidence import IgniteGaps
 from sim_bench.can_rig import CanBench, RawHost
 from sim_bench.zenoh_body_server import free_port, serve_sim_body
 from waiting import wait_for
@@ -455,14 +456,7 @@ def test_junk_flood_during_a_flame_hold_leaves_the_hold_correct_and_the_flame_of
     (this process descheduled on a loaded machine); a trip with the keep-alives on time fails."""
     with CanBench(with_arm=False) as bench:
         foreign = RawHost(bench.bus, heartbeat_period=None)
-        ignites: list[float] = []  # bus times of our host's IGNITE frames
-        ign_cmd = Encoder().encode("IGN_CMD", {"Command": IGN_IGNITE})
-
-        def on_frame(msg: can.Message) -> None:
-            if msg.arbitration_id == ign_cmd.arbitration_id and not msg.is_extended_id and msg.data[0] == IGN_IGNITE:
-                ignites.append(msg.timestamp)
-
-        foreign.notifier.add_listener(on_frame)
+        gaps = IgniteGaps(bench.bus)  # bus times of our host's IGNITE frames and the board's trips
         stop = threading.Event()
         junk = [can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False),
                 can.Message(arbitration_id=0x120, data=bytes(8), is_extended_id=True),
@@ -481,19 +475,19 @@ def test_junk_flood_during_a_flame_hold_leaves_the_hold_correct_and_the_flame_of
         timeout = bench.robot_side.board.p.keepalive_timeout
         try:
             for _ in range(3):
-                ignites.clear()
+                gaps.clear()
                 bench.igniter.arm(1.0)
                 r = bench.igniter.ignite(0.3, lambda: True, 3.0)
                 if r.ok:
                     break
                 assert r.reason == "keepalive_timeout", r
-                time.sleep(0.1)  # the notifier has the last frames
-                gaps = np.diff(ignites)
-                assert gaps.size and gaps.max() > timeout, (r, gaps.max(initial=0.0))
+                time.sleep(0.1)  # the listener has the last frames
+                assert gaps.host_silence() > timeout, (r, gaps.host_silence())
         finally:
             stop.set()
             th.join(1.0)
             foreign.close()
+            gaps.close()
         assert r.ok, r
         rej = bench.igniter.rx_stats.rejected
         assert rej["unknown_id"] > 0 and rej["extended_id"] > 0 and rej["dlc"] > 0 and rej["fd"] > 0
