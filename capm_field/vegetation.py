@@ -84,10 +84,25 @@ def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: n
     if lab:
         return neg_a_star(bgr, gains)
     if bgr.dtype == np.uint8 and bgr.ndim == 3 and bgr.shape[2] == 3:
-        # split the 8-bit planes first and scale each: ~4× faster than scaling the 3-channel
-        # image to float and splitting that (same values)
-        return _gstar(*(cv2.multiply(p, float(k), dtype=cv2.CV_32F) for p, k in zip(cv2.split(bgr), gains)))
+        # split the 8-bit planes first and scale each by table lookup: ~4× faster than scaling the
+        # 3-channel image to float and splitting that, and ~20 % faster than `cv2.multiply` into
+        # float (same values: the tables are that multiply's own output)
+        tabs = _gain_tables(tuple(float(k) for k in np.asarray(gains).reshape(3)))
+        return _gstar(*(cv2.LUT(p, t) for p, t in zip(cv2.split(bgr), tabs)))
     return greenness(_scaled(bgr, gains))
+
+
+@functools.lru_cache(maxsize=16)
+def _gain_tables(gains: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
+    """Per channel, the float32 value of each 8-bit level × its gain, as `cv2.multiply(plane, gain,
+    dtype=CV_32F)` gives it (read-only (256, 1) tables for `cv2.LUT`)."""
+    levels = np.arange(256, dtype=np.uint8).reshape(256, 1)
+    out = []
+    for k in gains:
+        t = cv2.multiply(levels, k, dtype=cv2.CV_32F)
+        t.flags.writeable = False
+        out.append(t)
+    return tuple(out)
 
 
 def neg_a_star(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
