@@ -8,6 +8,7 @@ compound ones. Coordinates are (x, y) pixels of the plant's grid (see `capm_fiel
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 THIN_BLADE, THIN_ROUND = 0.02, 0.06  # a plant's mean half-width / its size: below THIN_ROUND its parts are blades
@@ -53,32 +54,34 @@ def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float, scale: float = 0.
     phi = 0.5 * np.arctan2(2 * jxy[ys, xs], jxx[ys, xs] - jyy[ys, xs]) + np.pi / 2
     dx, dy = np.cos(phi).astype(np.float32), np.sin(phi).astype(np.float32)
     L = int(0.6 * size)
-    t = np.arange(-L, L + 1, dtype=np.float32)
-    # nearest pixel along each line in float32/int32 (half the time of float64 rint); the
-    # offset keeps the values positive so the cast rounds like floor(x + ½)
-    off = np.float32(L + 1.5)
-    px = _line_pixels(xs, dx, t, off, L + 1, np.int32)
-    idx = _line_pixels(ys, dy, t, off, L + 1, np.int64)  # py, then the flat index (int64: no copy in bincount)
-    # points off the grid go to one extra bin (dropped), not through boolean selections of both
-    # arrays: every other bin sums the same weights in the same order
-    off_grid = (px.view(np.uint32) >= w) | (idx.view(np.uint64) >= h)  # negative → huge unsigned
-    idx *= w
-    idx += px
-    np.putmask(idx, off_grid, h * w)
-    ww = np.repeat(wgt[ys, xs].astype(np.float64), len(t))  # each line's weight on its points
-    acc = np.bincount(idx.ravel(), weights=ww, minlength=h * w + 1)[:h * w].reshape(h, w).astype(np.float32)
+    acc = line_votes(xs, ys, dx, dy, wgt[ys, xs].astype(np.float64), L, h, w).reshape(h, w).astype(np.float32)
     acc = cv2.GaussianBlur(acc, (0, 0), max(1.0, 0.02 * size))
     return acc / (acc.max() + 1e-9)
 
 
-def _line_pixels(c: np.ndarray, d: np.ndarray, t: np.ndarray, off: np.float32, shift: int,
-                 dtype: type[np.signedinteger]) -> np.ndarray:
-    """(n, len(t)) integers (c + d·t + off) truncated, − shift, for each start c (n,) and direction
-    d (n,) float32 (float32 arithmetic); in place in one buffer (fresh large temporaries cost
-    page faults on the VM)."""
-    p = np.multiply(d[:, None], t[None, :])
-    p += c.astype(np.float32)[:, None]
-    p += off
-    q = p.astype(dtype)
-    q -= shift
-    return q
+@numba.njit("float64[::1](int64[:], int64[:], float32[:], float32[:], float64[:], int64, int64, int64)",
+            cache=True, nogil=True)
+def line_votes(xs, ys, dx, dy, wts, L, h, w):  # pragma: no cover - compiled; tested against numpy in tests
+    """Each point (xs[i], ys[i]) votes `wts[i]` into every grid pixel nearest to the points at
+    t = −L … L along its direction (dx[i], dy[i]): a flat (h·w,) float64 map. Pixels off the grid
+    get no vote.
+
+    Compiled (numba): in numpy this took ~1.7 ms of a ~2.4 ms `axis_votes` call (the
+    (n, 2L + 1) index and weight arrays, ~150 000 points, made and summed by `np.bincount`); one
+    loop makes no arrays. The arithmetic is numpy's float32 of the former code (x + d·t + L + 1.5
+    truncated, − (L + 1): the offset keeps the values positive so truncation rounds like
+    floor(x + ½)), summed in the same order, so the map is the same to the last bit (checked
+    against a numpy reference in tests/test_axis_votes.py).
+    """
+    acc = np.zeros(h * w, np.float64)
+    off = np.float32(L + 1.5)
+    for i in range(xs.shape[0]):
+        cx, cy = np.float32(xs[i]), np.float32(ys[i])
+        ddx, ddy, wt = dx[i], dy[i], wts[i]
+        for k in range(2 * L + 1):
+            t = np.float32(k - L)
+            px = np.int64(ddx * t + cx + off) - (L + 1)
+            py = np.int64(ddy * t + cy + off) - (L + 1)
+            if 0 <= px < w and 0 <= py < h:
+                acc[py * w + px] += wt
+    return acc
