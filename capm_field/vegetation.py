@@ -11,6 +11,7 @@ import functools
 import math
 
 import cv2
+import numba
 import numpy as np
 
 from .order_stats import median, row_medians
@@ -84,25 +85,38 @@ def vegetation_index(bgr: np.ndarray, inside: np.ndarray | None = None, gains: n
     if lab:
         return neg_a_star(bgr, gains)
     if bgr.dtype == np.uint8 and bgr.ndim == 3 and bgr.shape[2] == 3:
-        # split the 8-bit planes first and scale each by table lookup: ~4× faster than scaling the
-        # 3-channel image to float and splitting that, and ~20 % faster than `cv2.multiply` into
-        # float (same values: the tables are that multiply's own output)
-        tabs = _gain_tables(tuple(float(k) for k in np.asarray(gains).reshape(3)))
-        return _gstar(*(cv2.LUT(p, t) for p, t in zip(cv2.split(bgr), tabs)))
+        return _gstar_u8(bgr, _gain_tables(tuple(float(k) for k in np.asarray(gains).reshape(3))))
     return greenness(_scaled(bgr, gains))
 
 
 @functools.lru_cache(maxsize=16)
-def _gain_tables(gains: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
-    """Per channel, the float32 value of each 8-bit level × its gain, as `cv2.multiply(plane, gain,
-    dtype=CV_32F)` gives it (read-only (256, 1) tables for `cv2.LUT`)."""
+def _gain_tables(gains: tuple[float, float, float]) -> np.ndarray:
+    """(3, 256) float32, read-only: per channel (B, G, R), the value of each 8-bit level × its gain,
+    as `cv2.multiply(plane, gain, dtype=CV_32F)` gives it."""
     levels = np.arange(256, dtype=np.uint8).reshape(256, 1)
-    out = []
-    for k in gains:
-        t = cv2.multiply(levels, k, dtype=cv2.CV_32F)
-        t.flags.writeable = False
-        out.append(t)
-    return tuple(out)
+    t = np.stack([cv2.multiply(levels, k, dtype=cv2.CV_32F).ravel() for k in gains])
+    t.flags.writeable = False
+    return t
+
+
+@numba.njit(numba.float32[:, ::1](numba.types.Array(numba.uint8, 3, "A", readonly=True),
+                                  numba.types.Array(numba.float32, 2, "C", readonly=True)),
+            cache=True, nogil=True)
+def _gstar_u8(bgr, tabs):  # pragma: no cover - compiled; tested against OpenCV in tests/test_vegetation_index.py
+    """G* of an 8-bit BGR image (any strides) whose channels are scaled by table lookup (`_gain_tables`).
+
+    One pass per pixel, the float32 operations of `_gstar` in its order, so the same values to
+    the last bit: 0.35 against 0.82 ms for 250 000 px (OpenCV's split, three lookups and five
+    full-image operations, each a pass over memory; session 41)."""
+    h, w = bgr.shape[0], bgr.shape[1]
+    out = np.empty((h, w), np.float32)
+    c30 = np.float32(30.0)
+    for i in range(h):
+        for j in range(w):
+            b, g, r = tabs[0, bgr[i, j, 0]], tabs[1, bgr[i, j, 1]], tabs[2, bgr[i, j, 2]]
+            m = r if r > b else b  # max(R, B)
+            out[i, j] = (g - m) / ((b + g) + (r + c30))
+    return out
 
 
 def neg_a_star(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from capm_field.vegetation import neg_a_star, vegetation_index
+from capm_field.vegetation import _gstar, neg_a_star, vegetation_index
 
 
 def _a_star_reference(rgb: np.ndarray) -> np.ndarray:
@@ -85,3 +85,35 @@ def test_gstar_8bit_tables_equal_the_float_path(bgr, gains) -> None:
     want = (gr - np.maximum(r, b)) / (b + gr + r + 30.0)
     np.testing.assert_allclose(got, want, atol=1e-6)
     assert np.array_equal(vegetation_index(bgr, gains=g), got)  # again, from the cached tables
+
+
+def _gstar_by_planes(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """G* as the detector computed it before its per-pixel loop was compiled (`_gstar_u8`): the
+    planes split, scaled by `cv2.LUT` from `cv2.multiply`'s own values, five full-image operations."""
+    levels = np.arange(256, dtype=np.uint8).reshape(256, 1)
+    tabs = [cv2.multiply(levels, float(k), dtype=cv2.CV_32F) for k in gains]
+    return _gstar(*(cv2.LUT(p, t) for p, t in zip(cv2.split(np.ascontiguousarray(bgr)), tabs)))
+
+
+@st.composite
+def _frames(draw):
+    h, w = draw(st.integers(1, 40)), draw(st.integers(1, 40))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    img = rng.integers(0, 256, (h + 4, w + 4, 3), dtype=np.uint8)
+    layout = draw(st.sampled_from(["c", "view", "fortran", "readonly"]))
+    if layout == "view":  # a crop of a larger frame: rows not contiguous
+        img = img[2:2 + h, 1:1 + w]
+    elif layout == "fortran":
+        img = np.asfortranarray(img)
+    elif layout == "readonly":
+        img.flags.writeable = False
+    return img, np.array(draw(st.lists(st.floats(0.5, 2.0), min_size=3, max_size=3)), np.float32)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_frames())
+def test_gstar_compiled_loop_equals_the_opencv_planes_in_any_layout(args) -> None:
+    img, gains = args
+    got = vegetation_index(img, gains=gains)
+    assert got.dtype == np.float32 and got.shape == img.shape[:2]
+    assert np.array_equal(got, _gstar_by_planes(img, gains))
