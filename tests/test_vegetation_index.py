@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from capm_field import vegetation as veg
 from capm_field.vegetation import _gstar, neg_a_star, vegetation_index
 
 
@@ -110,10 +111,22 @@ def _frames(draw):
     return img, np.array(draw(st.lists(st.floats(0.5, 2.0), min_size=3, max_size=3)), np.float32)
 
 
+def test_the_gstar_loop_is_compiled_here() -> None:
+    # numba is a dependency: a missing or failing compile would only show as a slower detector
+    assert veg._gstar_u8 is not None
+
+
 @settings(max_examples=200, deadline=None)
 @given(_frames())
 def test_gstar_compiled_loop_equals_the_opencv_planes_in_any_layout(args) -> None:
     img, gains = args
     got = vegetation_index(img, gains=gains)
     assert got.dtype == np.float32 and got.shape == img.shape[:2]
-    assert np.array_equal(got, _gstar_by_planes(img, gains))
+    want = _gstar_by_planes(img, gains)
+    assert np.array_equal(got, want)
+    compiled = veg._gstar_u8
+    try:  # and without the compiled loop (as where numba cannot compile): the same
+        veg._gstar_u8 = None
+        assert np.array_equal(vegetation_index(img, gains=gains), want)
+    finally:
+        veg._gstar_u8 = compiled
