@@ -33,10 +33,12 @@ def kernel(signature: Callable[[object], object]) -> Callable[[Callable], Callab
         if numba is None:
             log.warning("numba is not available (%s): %s runs in numpy, slower", _missing, name)
             return None
-        try:
-            return numba.njit(signature(numba), cache=True, nogil=True)(fn)
-        except Exception:  # noqa: BLE001 - any compile failure leaves the numpy formulation
-            log.warning("numba could not compile %s: it runs in numpy, slower", name, exc_info=True)
-            return None
+        for cache in (True, False):  # (no writable cache directory: compiled anew in each process)
+            try:
+                return numba.njit(signature(numba), cache=cache, nogil=True)(fn)
+            except Exception:  # noqa: BLE001 - any compile failure leaves the numpy formulation
+                if not cache:
+                    log.warning("numba could not compile %s: it runs in numpy, slower", name, exc_info=True)
+        return None
 
     return wrap

@@ -44,3 +44,15 @@ def test_without_numba_every_loop_is_none_with_a_warning(monkeypatch, caplog: py
 
     assert total is None
     assert "numba is not available" in caplog.text and "No module named" in caplog.text
+
+
+def test_a_loop_that_cannot_be_cached_is_still_compiled() -> None:
+    # numba caches beside the source file; code without one (here: exec'd) has no cache directory
+    ns = {"kernel": compiled.kernel}
+    exec(
+        "@kernel(lambda nb: nb.int64(nb.int64))\n"
+        "def twice(n):\n"
+        "    return 2 * n\n",
+        ns,
+    )
+    assert ns["twice"] is not None and ns["twice"](21) == 42
