@@ -17,11 +17,6 @@ from capm_field import axis_votes as av
 from capm_field.axis_votes import axis_votes, line_votes
 
 
-def test_the_loop_is_compiled_here() -> None:
-    # numba is a dependency: a missing or failing compile would only show as a slower detector
-    assert av._line_votes_loop is not None
-
-
 @st.composite
 def vote_inputs(draw):
     h, w = draw(st.integers(1, 60)), draw(st.integers(1, 60))

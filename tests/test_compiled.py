@@ -8,7 +8,7 @@ import logging
 import numpy as np
 import pytest
 
-from capm_field import compiled
+from capm_field import axis_votes, compiled, vegetation
 
 
 def test_compiles_a_loop() -> None:
@@ -56,3 +56,9 @@ def test_a_loop_that_cannot_be_cached_is_still_compiled() -> None:
         ns,
     )
     assert ns["twice"] is not None and ns["twice"](21) == 42
+
+
+def test_the_detectors_loops_are_compiled_here() -> None:
+    # numba is a dependency: a missing or failing compile would only show as a slower detector
+    assert vegetation._gstar_u8 is not None
+    assert axis_votes._line_votes_loop is not None
