@@ -141,7 +141,7 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
     if roundness < axis_votes.THIN_ROUND:  # blades: their edges run along them, towards the base
         votes = axis_votes.axis_votes(vi, plant, size)
         n_peaks = axis_votes.vote_peaks(votes, size)
-        uv = fan_apex.fan_apex(plant, votes, size, n_peaks)
+        uv = fan_apex.fan_apex(plant, votes, size, n_peaks, roundness)
         if uv is not None:
             method = "fan_apex"
     # plants with broad, rounded parts (clover trefoils, seedlings): trust where stalks or thin

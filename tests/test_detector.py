@@ -220,6 +220,36 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
     assert err > 0.03 and method == "fan_apex", (err, method)
 
 
+@pytest.mark.parametrize("seed, index", [(6, 214), (7, 74)])
+def test_wide_one_peak_grass_fan_is_centred_at_its_base(seed: int, index: int, monkeypatch) -> None:
+    """Bench grass tufts whose thin blades fan over ~150–200° from one base (one leaf-axis vote
+    peak): `fan_apex` answers at the base (0.9 and 5.3 mm off). Under the old single pixel gap
+    (0.8 × 3.6 rad for every plant) they went to `petiole_centre` / `line_hub`, 16.9 and 30.8 mm off."""
+    import capm_field.fan_apex as fan
+
+    locate = _bench_weed(seed, index, "grass")
+    err, method = locate()
+    assert err < 0.008 and method == "fan_apex", (err, method)
+    monkeypatch.setattr(fan, "FAN_PIX_GAP_ONE", fan.FAN_PIX_GAP)
+    monkeypatch.setattr(fan, "FAN_GAP", 3.6)
+    err, method = locate()
+    assert err > 0.012 and method != "fan_apex", (err, method)
+
+
+def test_clover_of_two_vote_peaks_keeps_its_stalks(monkeypatch) -> None:
+    """Bench seed 4 case 167: a clover of thin parts (roundness 0.022) whose stalks `stalk_centre`
+    finds (0.6 mm off). Seen from its strongest vote peak it leaves a 130° gap, which the wide-fan
+    pixel test for one-peak blades would pass (38.5 mm off as a fan); its votes have 2 peaks."""
+    import capm_field.fan_apex as fan
+
+    locate = _bench_weed(4, 167)
+    err, method = locate()
+    assert err < 0.003 and method == "stalk_centre", (err, method)
+    monkeypatch.setattr(fan, "FAN_PIX_GAP", fan.FAN_PIX_GAP_ONE)
+    err, method = locate()
+    assert err > 0.03 and method == "fan_apex", (err, method)
+
+
 @pytest.mark.parametrize("seed, index, kind", [(5, 178, "grass"), (6, 32, "rosette")])
 def test_line_hub_far_off_the_plants_middle_is_not_its_centre(seed: int, index: int, kind: str, monkeypatch) -> None:
     """Bench seed 5 case 178 (a grass tuft of thick blades) and seed 6 case 32 (a rosette):
