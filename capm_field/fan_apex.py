@@ -17,9 +17,9 @@ FAN_PIX_GAP = 2.88  # rad: the plant's pixels beyond 0.15 of its size, seen from
 FAN_PIX_GAP_ONE = 2.08  # ... or this (≈ 119°) for thin blades (roundness < FAN_BLADE_ROUND) whose leaf axes meet
 FAN_BLADE_ROUND = 0.031  # at one point (one `vote_peaks` peak: not a clover's several trefoil hubs) ...
 FAN_GAP = 2.6  # ... and its far geodesic tips one of at least this (≈ 149°; the tips lie among those pixels, so
-# the pixel test mostly decides).
-# Until session 42: 3.6 for the tips and 0.8 × that for the pixels, for every plant. Grass tufts fanning
-# 150–240° then went to the estimators for round plants, which land mid-tuft. Bench seeds 0–7: wrong 41 → 38;
+# after FAN_PIX_GAP this one rarely decides; after FAN_PIX_GAP_ONE it does: such fans' tips span ≤ ~211°).
+# Until session 42: 3.6 for the tips and 0.8 × that for the pixels, for every plant. Grass tufts whose tips
+# span 155–211° then went to the estimators for round plants, which land mid-tuft. Bench seeds 0–7: wrong 41 → 38;
 # 37 answers better by > 1 mm, 14 worse; by > 5 mm 12 better (30.8 → 5.3, 61.5 → 29.0, 48.9 → 2.2, 27.7 → 7.8,
 # 16.9 → 0.9 mm), 3 worse (3.2 → 8.7, 7.0 → 20.2, 4.1 → 13.4 mm). Field-photo seeds 0–5 (with and without a
 # ROI): one answer 0.19 → 0.10 S, one 0.03 → 0.13 S, the rest within 0.02 S. The looser pixel test for every
