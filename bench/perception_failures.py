@@ -2,6 +2,7 @@
 results and save side-by-side PNGs of the failing ones.
 
     .venv/bin/python bench/perception_failures.py --scenes 300 --seed 0 --out /tmp/pf [--jobs 2]
+    .venv/bin/python bench/perception_failures.py --scenes 300 --seeds 0-7 --jobs 2 --save none   (pooled)
 
 Rendered views are cached as lossless PNGs under --cache (default /tmp/pf_cache/<seed>) so the
 detector can be re-evaluated quickly. For each failure (miss, false plant on bare soil, or centre
@@ -162,43 +163,49 @@ def _zoom(img, m, truth_px, det, h):
     return z
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", type=int, default=300)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--bare-share", type=float, default=0.15)
-    ap.add_argument("--out", default="/tmp/pf")
-    ap.add_argument("--cache", default=None)
-    ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--save", choices=["fail", "all", "none"], default="fail")
-    ap.add_argument("--only", default=None, help="comma-separated case indices")
-    ap.add_argument("--detector", default=None, help="path of another detector.py to evaluate instead (A/B)")
-    a = ap.parse_args(argv)
-    out = Path(a.out)
+def _seeds(text: str) -> list[int]:
+    """'0-7' or '0,2,5' (or a mix: '0-3,6') → the seeds."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.strip().partition("-")
+        out += list(range(int(lo), int(hi) + 1)) if hi else [int(lo)]
+    return out
+
+
+def _run_seed(a, seed: int, out: Path) -> list[dict]:
+    """The bench cases of one seed evaluated (rendered views cached), their rows written to
+    out/cases.json and failing frames saved as PNGs there (per --save)."""
     out.mkdir(parents=True, exist_ok=True)
     for f in out.glob("*.png"):
         f.unlink()
-    cache = Path(a.cache or f"/tmp/pf_cache/{a.seed}")
+    cache = Path(a.cache.format(seed=seed) if a.cache else f"/tmp/pf_cache/{seed}")
     cache.mkdir(parents=True, exist_ok=True)
     n_bare = int(round(a.scenes * a.bare_share))
-    bare_idx = set(np.random.default_rng(a.seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
+    bare_idx = set(np.random.default_rng(seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
     idx = range(a.scenes) if a.only is None else [int(s) for s in a.only.split(",")]
     save = None if a.save == "none" else a.save
-    jobs = [(a.seed, i, i in bare_idx, cache, out, save, a.detector) for i in idx]
+    jobs = [(seed, i, i in bare_idx, cache, out, save, a.detector) for i in idx]
     if a.jobs > 1:
         with ProcessPoolExecutor(a.jobs) as ex:
             rows = [r for r in ex.map(evaluate, jobs, chunksize=4) if r is not None]
     else:
         rows = [r for r in map(evaluate, jobs) if r is not None]
     (out / "cases.json").write_text(json.dumps(rows, indent=1))
+    return rows
+
+
+def _summary(rows: list[dict], kinds: bool = True) -> None:
     weeds = [r for r in rows if r["kind"] != "bare"]
     bare = [r for r in rows if r["kind"] == "bare"]
     errs = [r["err_mm"] for r in weeds if r["err_mm"] is not None]
     det = len(errs)
-    print(f"weed {len(weeds)}: detected {det / max(len(weeds), 1):.1%}, wrong {sum(e > WRONG_MM for e in errs) / max(len(weeds), 1):.1%}, "
+    n_wrong = sum(e > WRONG_MM for e in errs)
+    print(f"weed {len(weeds)}: detected {det / max(len(weeds), 1):.1%} ({det}), wrong {n_wrong / max(len(weeds), 1):.1%} ({n_wrong}), "
           f"err median {np.median(errs) if errs else float('nan'):.2f} p90 {np.percentile(errs, 90) if errs else float('nan'):.2f} max {max(errs, default=float('nan')):.0f} mm; "
           f"bare no_plant {sum(r['reason'] == 'no_plant' for r in bare)}/{len(bare)}; "
           f"latency median {np.median([r['lat_ms'] for r in rows]):.1f} p90 {np.percentile([r['lat_ms'] for r in rows], 90):.1f} ms")
+    if not kinds:
+        return
     for k in sorted({r["kind"] for r in weeds}):
         rk = [r for r in weeds if r["kind"] == k]
         ek = [r["err_mm"] for r in rk if r["err_mm"] is not None]
@@ -209,8 +216,37 @@ def main(argv=None) -> int:
         med, p90 = (np.median(ek), np.percentile(ek, 90)) if ek else (float("nan"), float("nan"))  # --only: maybe none found
         print(f"  {k:<9} n {len(rk):>3} det {len(ek) / len(rk):6.1%} wrong {sum(e > WRONG_MM for e in ek):>2} "
               f"median {med:5.2f} p90 {p90:6.2f} mm  misses {reasons}")
-    fails = [r["i"] for r in rows if r["fail"]]
-    print("failing:", ",".join(map(str, fails)))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", default=None,
+                    help="several seeds, e.g. 0-7 or 0,2,5: each seed's cases under --out/seed_<S>, its summary, "
+                         "then the pooled one (the figure docs/perception.md quotes for seeds 0–7)")
+    ap.add_argument("--bare-share", type=float, default=0.15)
+    ap.add_argument("--out", default="/tmp/pf")
+    ap.add_argument("--cache", default=None, help="rendered views' directory; '{seed}' in it is replaced "
+                                                  "(default /tmp/pf_cache/<seed>)")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--save", choices=["fail", "all", "none"], default="fail")
+    ap.add_argument("--only", default=None, help="comma-separated case indices")
+    ap.add_argument("--detector", default=None, help="path of another detector.py to evaluate instead (A/B)")
+    a = ap.parse_args(argv)
+    if a.seeds is None:
+        rows = _run_seed(a, a.seed, Path(a.out))
+        _summary(rows)
+        print("failing:", ",".join(str(r["i"]) for r in rows if r["fail"]))
+        return 0
+    pooled: list[dict] = []
+    for seed in _seeds(a.seeds):
+        rows = _run_seed(a, seed, Path(a.out) / f"seed_{seed}")
+        print(f"seed {seed}: ", end="")
+        _summary(rows, kinds=False)
+        pooled += rows
+    print("pooled:", end=" ")
+    _summary(pooled)
     return 0
 
 
