@@ -205,3 +205,22 @@ def test_bench_mission_refuses_a_bad_summary_in_one_line_before_the_bench(tiny_r
     assert len(r.stderr.strip().splitlines()) == 1 and not r.stdout  # refused before the bench printed anything
     if edit is _other_mission:
         assert "this mission 'tiny'" in r.stderr and str(mission) in r.stderr
+
+
+def test_perception_failures_pools_several_seeds(tmp_path):
+    """bench/perception_failures.py --seeds: each seed's cases under its own directory, one line
+    per seed and a pooled line whose counts are the seeds' sums."""
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(root / "bench" / "perception_failures.py"), "--scenes", "4", "--seeds", "0,3",
+                          "--bare-share", "0.25", "--save", "none", "--out", str(tmp_path / "pf"),
+                          "--cache", str(tmp_path / "cache" / "{seed}")],
+                         capture_output=True, text=True, timeout=300, cwd=root)
+    assert out.returncode == 0, out.stderr
+    rows = {s: json.loads((tmp_path / "pf" / f"seed_{s}" / "cases.json").read_text()) for s in (0, 3)}
+    assert all(len(r) == 4 for r in rows.values())
+    assert (tmp_path / "cache" / "3").is_dir()
+    lines = out.stdout.splitlines()
+    assert [ln.split(":")[0] for ln in lines if ln.startswith("seed ")] == ["seed 0", "seed 3"]
+    pooled = next(ln for ln in lines if ln.startswith("pooled:"))
+    n_weed = sum(r["kind"] != "bare" for rs in rows.values() for r in rs)
+    assert f"weed {n_weed}:" in pooled, pooled
