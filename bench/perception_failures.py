@@ -178,7 +178,12 @@ def _run_seed(a, seed: int, out: Path) -> list[dict]:
     out.mkdir(parents=True, exist_ok=True)
     for f in out.glob("*.png"):
         f.unlink()
-    cache = Path(a.cache.format(seed=seed) if a.cache else f"/tmp/pf_cache/{seed}")
+    if a.cache is None:
+        cache = Path(f"/tmp/pf_cache/{seed}")
+    elif "{seed}" in a.cache or a.seeds is None:
+        cache = Path(a.cache.format(seed=seed))
+    else:  # one directory for several seeds: each its own (views are named by case index only)
+        cache = Path(a.cache) / str(seed)
     cache.mkdir(parents=True, exist_ok=True)
     n_bare = int(round(a.scenes * a.bare_share))
     bare_idx = set(np.random.default_rng(seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
@@ -227,8 +232,8 @@ def main(argv=None) -> int:
                          "then the pooled one (the figure docs/perception.md quotes for seeds 0–7)")
     ap.add_argument("--bare-share", type=float, default=0.15)
     ap.add_argument("--out", default="/tmp/pf")
-    ap.add_argument("--cache", default=None, help="rendered views' directory; '{seed}' in it is replaced "
-                                                  "(default /tmp/pf_cache/<seed>)")
+    ap.add_argument("--cache", default=None, help="rendered views' directory; '{seed}' in it is replaced; with --seeds "
+                                                  "and no '{seed}', one subdirectory per seed (default /tmp/pf_cache/<seed>)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--save", choices=["fail", "all", "none"], default="fail")
     ap.add_argument("--only", default=None, help="comma-separated case indices")

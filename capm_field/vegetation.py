@@ -105,7 +105,7 @@ def _gain_tables(gains: tuple[float, float, float]) -> np.ndarray:
 
 @kernel(lambda nb: nb.float32[:, ::1](nb.types.Array(nb.uint8, 3, "A", readonly=True),
                                      nb.types.Array(nb.float32, 2, "C", readonly=True)))
-def _gstar_u8(bgr, tabs):  # pragma: no cover - compiled; tested against OpenCV in tests/test_vegetation_index.py
+def _gstar_u8(bgr, tabs):  # pragma: no cover - compiled; tested against the float path in tests/test_vegetation_index.py
     """G* of an 8-bit BGR image (any strides) whose channels are scaled by table lookup (`_gain_tables`).
 
     One pass per pixel (`capm_field.compiled`), the float32 operations of `_gstar` in its order,

@@ -224,3 +224,12 @@ def test_perception_failures_pools_several_seeds(tmp_path):
     pooled = next(ln for ln in lines if ln.startswith("pooled:"))
     n_weed = sum(r["kind"] != "bare" for rs in rows.values() for r in rs)
     assert f"weed {n_weed}:" in pooled, pooled
+    # a --cache without '{seed}' is split per seed: seed 3 must not read seed 0's views (named by case index)
+    again = subprocess.run([sys.executable, str(root / "bench" / "perception_failures.py"), "--scenes", "4", "--seeds", "0,3",
+                            "--bare-share", "0.25", "--save", "none", "--out", str(tmp_path / "pf2"),
+                            "--cache", str(tmp_path / "shared")], capture_output=True, text=True, timeout=300, cwd=root)
+    assert again.returncode == 0, again.stderr
+    assert sorted(p.name for p in (tmp_path / "shared").iterdir()) == ["0", "3"]
+    for s in (0, 3):
+        rows2 = json.loads((tmp_path / "pf2" / f"seed_{s}" / "cases.json").read_text())
+        assert [(r["kind"], r["reason"], r["pixel"]) for r in rows2] == [(r["kind"], r["reason"], r["pixel"]) for r in rows[s]]
