@@ -37,7 +37,28 @@ PET_RIM = 2.0  # px: a piece whose median distance from the broad parts is this 
 PET_LEAF_GAP = 0.10  # of the plant size: farthest a stalk piece may stay from every broad part
 
 
-def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, parts: tuple[float, np.ndarray] | None = None) -> np.ndarray | None:
+PET_DIRS = 8  # `split`: ridge direction bins (two adjacent ones make a piece) that part a bent piece's arms
+PET_SPLIT_LEN = 0.12  # `split`: × size, the longest piece meeting at the answer must reach this (bench seeds
+# 0–7, the only answers that moved: clovers 20.1 → 0.3, 21.3 → 3.2, 25.6 → 2.3 mm, one better by < 3 mm; with
+# no such floor two clovers 8.7 → 27.1 and 36.6 → 60.1 mm, where two short pieces of leaf shading met)
+
+
+def _piece(P: np.ndarray, size: float) -> tuple | None:
+    """A straight stalk piece from its pixels (x, y): (middle, unit direction, half-length, length),
+    or None if shorter than PET_MINLEN × size or than 3× its width."""
+    m = P.mean(0)
+    ev, evec = np.linalg.eigh(np.cov((P - m).T) + 1e-9 * np.eye(2))
+    d = evec[:, 1]
+    t = (P - m) @ d
+    L = float(t.max() - t.min()) + 1
+    wdt = math.sqrt(12 * max(ev[0], 0)) + 0.5
+    if L < PET_MINLEN * size or L < 3 * wdt:
+        return None
+    return (m + d * (t.max() + t.min()) / 2, d, L / 2, L)
+
+
+def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, parts: tuple[float, np.ndarray] | None = None,
+                   split: bool = False) -> np.ndarray | None:
     """Where ≥ 2 straight stalks (petioles) meet, in mask pixels; or None.
 
     Clover petioles and rosette leaf stalks are straight lines from the biological centre to
@@ -53,6 +74,9 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     the best-supported hypothesis (≥ 2 pieces) is refined by least squares over its support.
     It must lie in the plant's hull and within 0.12 × size of the plant or of a stalk piece
     (petioles seen only as index ridges may be long).
+    With `split`, a piece that is not straight (two petioles meeting in a V, one ridge component)
+    is also split by the ridge's direction (PET_DIRS) into straight pieces, and the answer needs
+    a supporting piece ≥ PET_SPLIT_LEN × size (the cascade asks this late, for compound leaves only).
     """
     if int(plant.sum()) < 20:
         return None
@@ -80,6 +104,7 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     off_leaf = cv2.distanceTransform((~broad).astype(np.uint8), cv2.DIST_L2, 3) if broad.any() else None
     segs = []  # (centre point, unit direction, half-length, weight)
     used = []  # labels of the stalk pieces
+    theta = None  # ridge direction per pixel, made when a bent piece needs splitting
     for c in range(1, n):
         if stats[c, cv2.CC_STAT_AREA] < 0.04 * size:
             continue
@@ -90,21 +115,44 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
         yy, xx = np.nonzero(lab[stats[c, cv2.CC_STAT_TOP]:stats[c, cv2.CC_STAT_TOP] + stats[c, cv2.CC_STAT_HEIGHT],
                                 stats[c, cv2.CC_STAT_LEFT]:stats[c, cv2.CC_STAT_LEFT] + stats[c, cv2.CC_STAT_WIDTH]] == c)
         P = np.c_[xx + stats[c, cv2.CC_STAT_LEFT], yy + stats[c, cv2.CC_STAT_TOP]].astype(float)
-        m = P.mean(0)
-        ev, evec = np.linalg.eigh(np.cov((P - m).T) + 1e-9 * np.eye(2))
-        d = evec[:, 1]
-        t = (P - m) @ d
-        L = float(t.max() - t.min()) + 1
-        wdt = math.sqrt(12 * max(ev[0], 0)) + 0.5
-        if L < PET_MINLEN * size or L < 3 * wdt:
+        seg = _piece(P, size)
+        if seg is not None:
+            segs.append(seg)
+            used.append(c)
             continue
-        segs.append((m + d * (t.max() + t.min()) / 2, d, L / 2, L))
-        used.append(c)
+        if not split:
+            continue
+        # a bent piece: two stalks that meet (a V whose apex is the centre) are one component;
+        # split it by the ridge's direction into straight pieces
+        if theta is None:
+            theta = (0.5 * np.arctan2(2 * fxy, fxx - fyy)) % np.pi  # along the ridge (λ_max's eigenvector)
+        b = np.floor(theta[P[:, 1].astype(int), P[:, 0].astype(int)] / (np.pi / PET_DIRS)).astype(int) % PET_DIRS
+        got = False
+        for k in range(PET_DIRS):
+            sel = (b == k) | (b == (k + 1) % PET_DIRS)
+            if np.count_nonzero(sel) < 0.04 * size:
+                continue
+            sub = np.zeros((stats[c, cv2.CC_STAT_HEIGHT], stats[c, cv2.CC_STAT_WIDTH]), np.uint8)
+            sub[P[sel, 1].astype(int) - stats[c, cv2.CC_STAT_TOP], P[sel, 0].astype(int) - stats[c, cv2.CC_STAT_LEFT]] = 1
+            m2, lab2, st2, _ = components(sub)
+            for c2 in range(1, m2):
+                if st2[c2, cv2.CC_STAT_AREA] < 0.04 * size:
+                    continue
+                y2, x2 = np.nonzero(lab2 == c2)
+                seg = _piece(np.c_[x2 + stats[c, cv2.CC_STAT_LEFT], y2 + stats[c, cv2.CC_STAT_TOP]].astype(float), size)
+                if seg is None or any(np.linalg.norm(seg[0] - s_[0]) < 2 and abs(float(seg[1] @ s_[1])) > 0.95 for s_ in segs):
+                    continue  # (the same piece from the neighbouring direction band)
+                segs.append(seg)
+                got = True
+        if got:
+            used.append(c)
     if len(segs) < 2:
         return None
     X = meeting_point(segs, max(1.5, 0.04 * size), 0.35 * size)
     if X is None:
         return None
+    if split and max(s_[3] for s_ in supporting(segs, X, max(1.5, 0.04 * size), 0.35 * size)) < PET_SPLIT_LEN * size:
+        return None  # (short ridge pieces only: a leaf's shading, its rim)
     h, w_ = plant.shape
     if not (0 <= X[0] < w_ and 0 <= X[1] < h):
         return None

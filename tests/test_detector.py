@@ -236,6 +236,22 @@ def test_wide_one_peak_grass_fan_is_centred_at_its_base(seed: int, index: int, m
     assert err > 0.012 and method != "fan_apex", (err, method)
 
 
+@pytest.mark.parametrize("seed, index", [(3, 139), (6, 223)])
+def test_clover_petioles_meeting_in_a_v_are_split(seed: int, index: int, monkeypatch) -> None:
+    """Bench clovers whose two visible petioles meet in a V: `petiole_centre` saw one bent ridge,
+    no straight piece, and the median of the parts answered 20.1 and 25.6 mm off. Split by the
+    ridge's direction (`split`, late in the cascade), the V's arms meet at the centre: 0.3 and 2.3 mm.
+    The floor on the longest supporting piece is what the test turns off to see the old answer."""
+    import capm_field.plant_centre as pc
+
+    locate = _bench_weed(seed, index)
+    err, method = locate()
+    assert err < 0.005 and method == "petiole_split", (err, method)
+    monkeypatch.setattr(pc, "PET_SPLIT_LEN", 10.0)
+    err, method = locate()
+    assert err > 0.015 and method != "petiole_split", (err, method)
+
+
 def test_clover_of_two_vote_peaks_keeps_its_stalks(monkeypatch) -> None:
     """Bench seed 4 case 167: a clover of thin parts (roundness 0.022) whose stalks `stalk_centre`
     finds (0.6 mm off). Seen from its strongest vote peak it leaves a 130° gap, which the wide-fan
