@@ -151,8 +151,10 @@ def petiole_centre(plant: np.ndarray, vi: np.ndarray, soil: float, thr: float, p
     X = meeting_point(segs, max(1.5, 0.04 * size), 0.35 * size)
     if X is None:
         return None
-    if split and max(s_[3] for s_ in supporting(segs, X, max(1.5, 0.04 * size), 0.35 * size)) < PET_SPLIT_LEN * size:
-        return None  # (short ridge pieces only: a leaf's shading, its rim)
+    if split:  # (the refined point's support may differ from the hypothesis's: it may even be empty)
+        longest = max((s_[3] for s_ in supporting(segs, X, max(1.5, 0.04 * size), 0.35 * size)), default=0.0)
+        if longest < PET_SPLIT_LEN * size:
+            return None  # short ridge pieces only: a leaf's shading, its rim
     h, w_ = plant.shape
     if not (0 <= X[0] < w_ and 0 <= X[1] < h):
         return None
