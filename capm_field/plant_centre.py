@@ -11,7 +11,8 @@ the first that answers:
   - leaf axes converging at ≥ 2 points (`capm_field.axis_votes`): first stalks the index misses
     but the grey image shows, `capm_field.stalks` (where they meet); then
   - compound leaves whose stalks do not show (clover trefoils): `capm_field.compound_leaf`,
-    where rays back from the three-lobed hubs agree; then, for rounded parts,
+    where rays back from the three-lobed hubs agree; then, for compound leaves, `petiole_centre`
+    again with bent ridges split (`split`: two petioles meeting in a V); then, for rounded parts,
     `component_median` or `pair_gap` (separate parts round an empty middle, same hull rule);
   - leaf axes converging at several separate points: where the leaves' axes traced back from
     their tips meet (`capm_field.leaf_axes`, rosettes), else the `geometric_median` of the plant;
