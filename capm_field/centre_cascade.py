@@ -195,8 +195,8 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # `petiole_centre` above): its arms apart, before the medians of the parts. Only for
         # compound leaves: for every plant of leaf clusters, field photos' seedlings, chickweed,
         # dandelions and fat-hens moved both ways (0.013 → 0.44 S), grass and rosettes too
-        parts = parts or plant_centre.broad_parts(plant)
         if compound_leaf.has_compound_leaves(hubs if hubs is not None else compound_leaf.compound_hubs(plant, vi, soil, size)):
+            parts = parts or plant_centre.broad_parts(plant)
             uv = plant_centre.petiole_centre(plant, vi, soil, thr, parts, split=True)
             if uv is not None and not plant_centre.within_broad_hull(uv, parts):
                 uv = None
