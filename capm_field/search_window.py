@@ -2,8 +2,8 @@
 
 The ROI's bounding box grown by ROI_MARGIN, downscaled once to the index image (≤ MID_PX_STAGE1
 px) and to the stage-1 grid (≤ WORK_PX on its longest side); the frame's sanity checks (dtype,
-shape, exposure, flatness, pixel noise: "bad_image"), the ROI mask on the grid and the soil
-white balance. Both looks of `capm_field.detector` and its shadowed-part looks share it.
+shape, exposure, flatness, pixel noise: "bad_image"), the index image median-filtered when the
+sensor noise is high (`DENOISE_FROM`), the ROI mask on the grid and the soil white balance. Both looks of `capm_field.detector` and its shadowed-part looks share it.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ class SearchWindow:
     n_in: int  # its pixel count
     gains: np.ndarray  # soil white balance of the first look (`soil_gains`)
     soil: np.ndarray | None = None  # where the soil statistics are measured, if not all of `inside`
+    noise: float = 0.0  # the index image's pixel-scale colour noise (`chroma_noise` ÷ the resampling factor)
 
     def to_full(self, p: np.ndarray) -> np.ndarray:
         """Stage-1 grid point (j, i) → full image (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
@@ -99,11 +100,22 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     flat = std < 1.5 and int(np.ptp(small.reshape(-1, 3), axis=0).max()) < FLAT_RANGE
     if mean < 12 or sat > 0.6 or flat or mean > 245:
         return bad
-    if _pixel_noise(crop) >= NOISE_SIGMA and _coherence(mid) < NOISE_COHERENCE:  # (the cheaper test first)
+    noise = chroma_noise(crop)
+    if max(_pixel_noise(crop), noise) >= NOISE_SIGMA and _coherence(mid) < NOISE_COHERENCE:  # (cheaper tests first)
         # strong noise, not a scene (a faulty sensor or a corrupted stream): max-pooled, it looks
         # green. Weak noise on a flat soil has no structure either, but a leaf as bright as the
-        # soil is structure in colour only: such a frame is read, not rejected
+        # soil is structure in colour only: such a frame is read, not rejected. (Noise independent in
+        # each channel is √3 × its grey level's: its colour noise is asked too)
         return bad
+    # the index image's own noise: area resampling by f × f averages the window's (a large plant
+    # photographed at high resolution has thin petioles that a filter at that scale would erase)
+    noise /= math.sqrt(crop.shape[0] * crop.shape[1] / (mid.shape[0] * mid.shape[1]))
+    if noise > DENOISE_FROM:
+        # heavy sensor noise (dim light, high gain): max-pooled, the index of a noisy soil has
+        # specks as green as a seedling. A median filter of the index image removes them and
+        # keeps edges (bench frames measure ≤ 6.8 here: it runs on ~1 % of them)
+        mid = cv2.medianBlur(mid, 3 if noise < 2 * DENOISE_FROM else 5)
+        small = resize_down(mid, (small.shape[1], small.shape[0])) if mid.shape[:2] != small.shape[:2] else mid
 
     inside = np.ones(gray.shape, bool)
     if roi is not None:
@@ -111,13 +123,45 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     n_in = int(np.count_nonzero(inside))
     if roi is not None and n_in < 16:
         return bad
-    return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside))
+    return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside), noise=noise)
 
 
 FLAT_RANGE = 16  # grey levels: a blank frame under sensor noise σ ≤ 5 stays within it on the stage-1 grid
 NOISE_COHERENCE = 0.65  # measured: bench, photo-like and other-renderer frames ≥ 0.87; RGB noise ≤ 0.56
-NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise`) from which an incoherent frame is noise:
-# uniform RGB noise ≈ 50 (JPEG-compressed ≈ 51–54), Gaussian σ = 40 per channel ≈ 27, a flat soil under σ = 30 ≈ 20
+NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise` of the grey level, or the colour noise,
+# `chroma_noise`) from which an incoherent frame is noise: uniform RGB noise ≈ 50 / 77, Gaussian σ = 40 per
+# channel ≈ 27 / 40 (JPEG-compressed uniform noise ≈ 51–54 grey); a flat soil under σ = 20 ≈ 13 / 20 is
+# read; ±45 uniform noise round mid-grey (18 / 27) gave small ROIs a "plant" before its colour counted
+DENOISE_FROM = 6.0  # σ of the index image's colour noise (`chroma_noise` of the window ÷ the resampling factor)
+# above which that image is median-filtered (3 × 3; 5 × 5 from twice that). Measured (session 44), bench
+# frames as rendered (seed 0): median 1.2, p99 5.3, max 6.9; with Gaussian noise of σ = 8 added to every
+# channel ≥ 5.1. Bench seeds 0–7 as rendered: 4 answers moved by 1–2 mm (1 better), pooled figures unchanged.
+# Seeds 0–3 and 5 (1 275 weed, 225 bare frames) with noise added: σ = 8, wrong 58 → 43, p90 16.9 → 15.2 mm,
+# bare soil answered 10 → 12; σ = 15, wrong 83 → 52, p90 22.6 → 19.8 mm, found 1 232 → 1 227, bare soil
+# answered 33 → 16 (as rendered: 22 wrong, 6 bare answered). Field photos (bench/field_photo_weeds.py:
+# luminance noise and blotchy chroma, as a camera leaves them) measure ≤ 0.7: none filtered, none moved.
+# Gated on each channel's noise instead (luminance noise counted), a fifth of them were: 8 fewer found.
+
+
+def chroma_noise(bgr: np.ndarray, step: int = 16) -> float:
+    """Pixel-scale colour noise, as the σ of independent noise in each channel, in grey levels: the
+    median absolute second difference of G − B and of G − R along every `step`-th row (the larger),
+    / (0.6745 · √12) (Gaussian noise; the median, unlike the mean, ignores edges and texture). Noise
+    equal in all channels (the luminance noise a camera leaves after its chroma denoising) cancels,
+    as it does in the vegetation index. ~0.1 ms on a 700 × 600 window."""
+    rows = bgr[step // 2::step].astype(np.int16)
+    if rows.shape[0] == 0 or rows.shape[1] < 3:
+        return 0.0
+    out = 0.0
+    for other in (0, 2):  # G − B, G − R
+        c = rows[..., 1] - rows[..., other]
+        d = np.minimum(np.abs(c[:, :-2] - 2 * c[:, 1:-1] + c[:, 2:]).ravel(), 2047)
+        h = np.bincount(d, minlength=2048)
+        cdf = np.cumsum(h)
+        half = cdf[-1] / 2
+        k = int(np.searchsorted(cdf, half))
+        out = max(out, k - 0.5 + (half - (cdf[k - 1] if k else 0.0)) / max(h[k], 1.0))  # median, within its bin
+    return max(out, 0.0) / (0.6745 * math.sqrt(12.0))
 
 
 def _pixel_noise(bgr: np.ndarray) -> float:
