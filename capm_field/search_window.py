@@ -135,26 +135,32 @@ NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise` of the grey lev
 DENOISE_FROM = 6.0  # σ of the index image's colour noise (`chroma_noise` of the window ÷ the resampling factor)
 # above which that image is median-filtered (3 × 3; 5 × 5 from twice that). Measured (session 44), bench
 # frames as rendered (seed 0): median 1.2, p99 5.3, max 6.9; with Gaussian noise of σ = 8 added to every
-# channel ≥ 5.1. Bench seeds 0–7 as rendered: 4 answers moved by 1–2 mm (1 better), pooled figures unchanged.
-# Seeds 0–3 and 5 (1 275 weed, 225 bare frames) with noise added: σ = 8, wrong 58 → 43, p90 16.9 → 15.2 mm,
-# bare soil answered 10 → 12; σ = 15, wrong 83 → 52, p90 22.6 → 19.8 mm, found 1 232 → 1 227, bare soil
-# answered 33 → 16 (as rendered: 22 wrong, 6 bare answered). Field photos (bench/field_photo_weeds.py:
+# channel ≥ 5.1. Bench seeds 0–7 as rendered: 5 answers moved by > 1 mm (1 better; a clover 1.6 → 22.3 mm,
+# seed 3's p90 9.64 → 9.91 mm), pooled figures unchanged. Seeds 0–3 and 5 (1 275 weed, 225 bare frames)
+# with noise added: σ = 8, wrong 58 → 42, p90 16.9 → 15.1 mm, bare soil answered 10 → 12; σ = 15, wrong
+# 83 → 52, p90 22.6 → 20.2 mm, found 1 232 → 1 228, bare soil answered 33 → 15 (as rendered: 22 wrong, 6
+# bare answered). Field photos (bench/field_photo_weeds.py:
 # luminance noise and blotchy chroma, as a camera leaves them) measure ≤ 0.7: none filtered, none moved.
 # Gated on each channel's noise instead (luminance noise counted), a fifth of them were: 8 fewer found.
 
 
-def chroma_noise(bgr: np.ndarray, step: int = 16) -> float:
+NOISE_ROWS = 16  # rows sampled by `chroma_noise` (~11 000 differences a colour pair on a bench window)
+
+
+def chroma_noise(bgr: np.ndarray, rows: int = NOISE_ROWS) -> float:
     """Pixel-scale colour noise, as the σ of independent noise in each channel, in grey levels: the
-    median absolute second difference of G − B and of G − R along every `step`-th row (the larger),
-    / (0.6745 · √12) (Gaussian noise; the median, unlike the mean, ignores edges and texture). Noise
-    equal in all channels (the luminance noise a camera leaves after its chroma denoising) cancels,
-    as it does in the vegetation index. ~0.1 ms on a 700 × 600 window."""
-    rows = bgr[step // 2::step].astype(np.int16)
-    if rows.shape[0] == 0 or rows.shape[1] < 3:
+    median absolute second difference of G − B and of G − R along `rows` rows spread over the image
+    (the larger), / (0.6745 · √12) (Gaussian noise; the median, unlike the mean, ignores edges and
+    texture). Noise equal in all channels (the luminance noise a camera leaves after its chroma
+    denoising) cancels, as it does in the vegetation index. ~0.12 ms on a 700 × 600 window."""
+    step = max(1, bgr.shape[0] // rows)
+    sample = bgr[step // 2::step]
+    if sample.shape[0] == 0 or sample.shape[1] < 3:
         return 0.0
+    g = sample[..., 1].astype(np.int16)
     out = 0.0
     for other in (0, 2):  # G − B, G − R
-        c = rows[..., 1] - rows[..., other]
+        c = g - sample[..., other]
         d = np.minimum(np.abs(c[:, :-2] - 2 * c[:, 1:-1] + c[:, 2:]).ravel(), 2047)
         h = np.bincount(d, minlength=2048)
         cdf = np.cumsum(h)
