@@ -70,6 +70,8 @@ def detect_centre(image_bgr: np.ndarray, roi: RoiLike = None, debug: dict | None
             win = search_window(image_bgr, roi)
             if isinstance(win, Detection):
                 return win
+            if debug is not None:
+                debug["noise"] = win.noise  # the index image's colour noise (`search_window.DENOISE_FROM`)
             det, chosen = _looks(image_bgr, win, debug)
             if det.reason == "no_plant":
                 det = _in_shadow_parts(image_bgr, win, debug) or det

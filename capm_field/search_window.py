@@ -2,8 +2,9 @@
 
 The ROI's bounding box grown by ROI_MARGIN, downscaled once to the index image (≤ MID_PX_STAGE1
 px) and to the stage-1 grid (≤ WORK_PX on its longest side); the frame's sanity checks (dtype,
-shape, exposure, flatness, pixel noise: "bad_image"), the index image median-filtered when the
-sensor noise is high (`DENOISE_FROM`), the ROI mask on the grid and the soil white balance. Both looks of `capm_field.detector` and its shadowed-part looks share it.
+shape, exposure, flatness, pixel noise: "bad_image"), the index image median-filtered when its
+colour noise is high (`DENOISE_FROM`), the ROI mask on the grid and the soil white balance. Both
+looks of `capm_field.detector` and its shadowed-part looks share it.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     if noise > DENOISE_FROM:
         # heavy sensor noise (dim light, high gain): max-pooled, the index of a noisy soil has
         # specks as green as a seedling. A median filter of the index image removes them and
-        # keeps edges (bench frames measure ≤ 6.8 here: it runs on ~1 % of them)
+        # keeps edges (bench frames as rendered measure ≤ ~7 here: it runs on ~1 % of them)
         mid = cv2.medianBlur(mid, 3 if noise < 2 * DENOISE_FROM else 5)
         small = resize_down(mid, (small.shape[1], small.shape[0])) if mid.shape[:2] != small.shape[:2] else mid
 
@@ -139,9 +140,9 @@ DENOISE_FROM = 6.0  # σ of the index image's colour noise (`chroma_noise` of th
 # seed 3's p90 9.64 → 9.91 mm), pooled figures unchanged. Seeds 0–3 and 5 (1 275 weed, 225 bare frames)
 # with noise added: σ = 8, wrong 58 → 42, p90 16.9 → 15.1 mm, bare soil answered 10 → 12; σ = 15, wrong
 # 83 → 52, p90 22.6 → 20.2 mm, found 1 232 → 1 228, bare soil answered 33 → 15 (as rendered: 22 wrong, 6
-# bare answered). Field photos (bench/field_photo_weeds.py:
-# luminance noise and blotchy chroma, as a camera leaves them) measure ≤ 0.7: none filtered, none moved.
-# Gated on each channel's noise instead (luminance noise counted), a fifth of them were: 8 fewer found.
+# bare answered). Field photos (bench/field_photo_weeds.py: luminance noise and blotchy chroma, as a
+# camera leaves them) measure ≤ 0.7: none filtered, none moved. Gated on each channel's noise instead
+# (luminance noise counted), a fifth of them were: 8 fewer found.
 
 
 NOISE_ROWS = 16  # rows sampled by `chroma_noise` (~11 000 differences a colour pair on a bench window)

@@ -47,6 +47,11 @@ def test_noisy_bare_soil_is_no_plant_once_the_index_is_median_filtered(monkeypat
     with the filter off, measured); with it, none (≤ 1 allowed)."""
     frames = [_bench(21, i, True) for i in range(24)]
     noisy = [(_noisy(img, 15, i), roi) for i, (_, img, roi) in enumerate(frames)]
+    dbg: dict = {}
+    detect_centre(frames[0][1], frames[0][2], debug=dbg)
+    assert dbg["noise"] < sw.DENOISE_FROM  # as rendered: not filtered
+    detect_centre(*noisy[0], debug=dbg)
+    assert dbg["noise"] > sw.DENOISE_FROM  # σ = 15 ÷ the resampling factor (~11 here): filtered
     with_filter = sum(detect_centre(img, roi).reason not in ("no_plant", "bad_image") for img, roi in noisy)
     monkeypatch.setattr(sw, "DENOISE_FROM", float("inf"))
     without = sum(detect_centre(img, roi).reason not in ("no_plant", "bad_image") for img, roi in noisy)
