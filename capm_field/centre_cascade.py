@@ -194,7 +194,8 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # compound leaves on petioles that meet in a V (one ridge, not two straight pieces, for
         # `petiole_centre` above): its arms apart, before the medians of the parts. Only for
         # compound leaves: for every plant of leaf clusters, field photos' seedlings, chickweed,
-        # dandelions and fat-hens moved both ways (0.013 → 0.44 S), grass and rosettes too
+        # dandelions and fat-hens moved both ways (0.013 → 0.44 S), grass and rosettes too. (Hubs made
+        # here are not kept in `hubs`: the tip-axes guard below reads only those the estimators above made)
         if compound_leaf.has_compound_leaves(hubs if hubs is not None else compound_leaf.compound_hubs(plant, vi, soil, size)):
             parts = parts or plant_centre.broad_parts(plant)
             uv = plant_centre.petiole_centre(plant, vi, soil, thr, parts, split=True)

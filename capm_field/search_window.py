@@ -114,7 +114,7 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     if noise > DENOISE_FROM:
         # heavy sensor noise (dim light, high gain): max-pooled, the index of a noisy soil has
         # specks as green as a seedling. A median filter of the index image removes them and
-        # keeps edges (bench frames as rendered measure ≤ ~7 here: it runs on ~1 % of them)
+        # keeps edges (bench frames as rendered measure ≤ 6.8 here: 1 of seed 0's 300 is filtered)
         mid = cv2.medianBlur(mid, 3 if noise < 2 * DENOISE_FROM else 5)
         small = resize_down(mid, (small.shape[1], small.shape[0])) if mid.shape[:2] != small.shape[:2] else mid
 
@@ -135,13 +135,13 @@ NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise` of the grey lev
 # read; ±45 uniform noise round mid-grey (18 / 27) gave small ROIs a "plant" before its colour counted
 DENOISE_FROM = 6.0  # σ of the index image's colour noise (`chroma_noise` of the window ÷ the resampling factor)
 # above which that image is median-filtered (3 × 3; 5 × 5 from twice that). Measured (session 44), bench
-# frames as rendered (seed 0): median 1.2, p99 5.3, max 6.9; with Gaussian noise of σ = 8 added to every
-# channel ≥ 5.1. Bench seeds 0–7 as rendered: 5 answers moved by > 1 mm (1 better; a clover 1.6 → 22.3 mm,
+# frames as rendered (seed 0): median 1.2, p99 5.3, max 6.8 (1 of 300 filtered); with Gaussian noise of
+# σ = 8 added to every channel ≥ 5.2 (271 of 300 filtered). Bench seeds 0–7 as rendered: 5 answers moved by > 1 mm (1 better; a clover 1.6 → 22.3 mm,
 # seed 3's p90 9.64 → 9.91 mm), pooled figures unchanged. Seeds 0–3 and 5 (1 275 weed, 225 bare frames)
 # with noise added: σ = 8, wrong 58 → 42, p90 16.9 → 15.1 mm, bare soil answered 10 → 12; σ = 15, wrong
 # 83 → 52, p90 22.6 → 20.2 mm, found 1 232 → 1 228, bare soil answered 33 → 15 (as rendered: 22 wrong, 6
 # bare answered). Field photos (bench/field_photo_weeds.py: luminance noise and blotchy chroma, as a
-# camera leaves them) measure ≤ 0.7: none filtered, none moved. Gated on each channel's noise instead
+# camera leaves them) measure ≤ 0.9 (1 260 photos): none filtered, none moved. Gated on each channel's noise instead
 # (luminance noise counted), a fifth of them were: 8 fewer found.
 
 
