@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.sparse.csgraph import dijkstra
 
-from .geodesic import crossing_cost, geodesic_tips, grid_graph
+from .geodesic import crossing_cost, distances, geodesic_tips, grid_graph
 
 FAN_PIX_GAP = 2.88  # rad: the plant's pixels beyond 0.15 of its size, seen from the apex, leave an empty sector
 # at least this wide (≈ 165°: the cheap first test) ...
@@ -91,7 +90,7 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, ro
     # and a start in the gap band would count its crossing cost on every path)
     k = int(np.argmin(dx * dx + dy * dy))
     src = np.array([px[k], py[k]], float)
-    g0 = dijkstra(G, directed=True, indices=[node[py[k], px[k]]])[0]
+    g0 = distances(G, [node[py[k], px[k]]])[0]
     tips = geodesic_tips(g0, node, plant, size)
     if len(tips) == 0:
         return None

@@ -12,10 +12,9 @@ import math
 
 import cv2
 import numpy as np
-from scipy.sparse.csgraph import dijkstra
 
 from .axis_votes import THIN_BLADE, THIN_ROUND, axis_votes
-from .geodesic import crossing_cost, geodesic_tips, grid_graph
+from .geodesic import crossing_cost, distances, geodesic_tips, grid_graph
 
 VOTE_WEIGHT = 2.0
 VOTE_CONC = (0.06, 0.08)  # share of the votes within 0.08 × size of their peak: no weight at the first, full
@@ -64,14 +63,14 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     prev: set = set()
     rows: dict[int, np.ndarray] = {}  # geodesic distances from each tip: the second pass finds mostly the same tips
     for _ in range(TM_ITER):
-        g0 = dijkstra(G, directed=True, indices=[centre_node])[0]
+        g0 = distances(G, [centre_node])[0]
         tips = geodesic_tips(g0, node, plant, size)
         if len(tips) == 0 or set(tips.tolist()) == prev:
             break  # same tips from the new centre: F, and so the minimum, would not change
         prev = set(tips.tolist())
         new = [t for t in tips.tolist() if t not in rows]
         if new:  # each source's row is computed on its own: the same as in a call with all tips
-            rows.update(zip(new, dijkstra(G, directed=True, indices=new, limit=np.inf)))
+            rows.update(zip(new, distances(G, new)))
         F = _tip_cost(np.array([rows[t] for t in tips.tolist()]), tips, size)
         centre_node = int(np.argmin(F))
     if len(tips) == 0:
@@ -88,7 +87,7 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
         d0 = rows[t0][on_plant]
         far = int(on_plant[np.argmax(np.where(np.isfinite(d0), d0, -1.0))])
         if far not in rows:
-            rows[far] = dijkstra(G, directed=True, indices=[far], limit=np.inf)[0]
+            rows[far] = distances(G, [far])[0]
         tips = np.array([t0, far])
         D0, D1 = rows[t0], rows[far]
         L = float(D0[far])

@@ -1835,7 +1835,7 @@ def test_threshold_equals_its_plain_numpy_definition(seed, n, share, soil, green
 @given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 70), w=st.integers(1, 70), share=st.floats(0.0, 1.0),
        holes=st.floats(0.0, 0.3))
 def test_grid_graph_equals_the_coo_built_matrix(seed, h, w, share, holes) -> None:
-    """`geodesic.grid_graph` (CSR built directly) is the matrix scipy builds from the edge list
+    """`geodesic.GridGraph.csr` (CSR built directly) is the matrix scipy builds from the edge list
     (COO → CSR): the same rows, columns and weights, so Dijkstra's distances cannot move."""
     import scipy.sparse as sp
 
@@ -1844,7 +1844,8 @@ def test_grid_graph_equals_the_coo_built_matrix(seed, h, w, share, holes) -> Non
     rng = np.random.default_rng(seed)
     cost = np.where(rng.random((h, w)) < share, 1.0, GAP_COST)
     cost[rng.random((h, w)) < holes] = np.inf
-    G, node = grid_graph(cost)
+    graph, node = grid_graph(cost)
+    G = graph.csr()
     ok = np.isfinite(cost)
     assert np.array_equal(node[ok], np.arange(int(ok.sum()))) and (node[~ok] == -1).all()
     rows, cols, wts = [], [], []
