@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from .compiled import kernel
+from .local_peaks import disc_peaks
 
 THIN_BLADE, THIN_ROUND = 0.02, 0.06  # a plant's mean half-width / its size: below THIN_ROUND its parts are blades
 # (`fan_apex` is tried first, and the tree median's votes count: fully from THIN_BLADE down); round parts' edges
@@ -23,8 +24,7 @@ SCATTER_PEAKS = 4  # vote peaks (≥ 0.7 of the highest, 0.12·size apart) that 
 def vote_peaks(votes: np.ndarray, size: float) -> int:
     """Number of separate strong peaks of a leaf-axis vote map (see `axis_votes`)."""
     r = max(2, int(0.12 * size))
-    mx = cv2.dilate(votes, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    return int(np.count_nonzero((votes >= mx) & (votes >= 0.7)))
+    return int(np.count_nonzero(disc_peaks(votes, votes >= 0.7, r)))
 
 
 def axis_votes(vi: np.ndarray, plant: np.ndarray, size: float, scale: float = 0.015) -> np.ndarray:

@@ -14,6 +14,7 @@ import math
 import cv2
 import numpy as np
 
+from .local_peaks import disc_peaks
 from .order_stats import percentile
 from .plant_centre import geometric_median
 
@@ -71,8 +72,7 @@ def compound_hubs(plant: np.ndarray, vi: np.ndarray, soil: float, size: float):
     near = cv2.dilate(plant.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     S = np.where(near, S, 0).astype(np.float32)
     r = max(2, int(HUB_NMS * size))
-    mx = cv2.dilate(S, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    ys, xs = np.nonzero((S >= mx) & (S >= HUB_REL * S.max()) & (S > 0))
+    ys, xs = np.nonzero(disc_peaks(S, (S >= HUB_REL * S.max()) & (S > 0), r))
     keep = np.argsort(-S[ys, xs])[:MAX_HUBS]  # the strongest few (bounds the run time)
     ys, xs = ys[keep], xs[keep]
     c, s = amp[2]

@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from .compiled import kernel
+from .local_peaks import disc_peaks
 
 GAP_COST = 4.0  # geodesic cost per pixel outside the vegetation mask (bridges lost petioles)
 BAND = 0.04  # gaps up to ~2·BAND·size wide may be crossed
@@ -70,8 +71,7 @@ def geodesic_tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: flo
     gm[~np.isfinite(gm)] = 0
     gm[~plant] = 0
     r = max(2, int(0.08 * size))
-    mx = cv2.dilate(gm, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    peak = (gm >= mx) & (gm > 0.2 * gm.max()) & plant
+    peak = disc_peaks(gm, (gm > 0.2 * gm.max()) & plant, r)
     ys, xs = np.nonzero(peak)
     if len(xs) == 0:
         return np.zeros(0, int)
