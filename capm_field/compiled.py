@@ -5,7 +5,7 @@ A loop is compiled when its module is imported (explicit signature, so no first-
 cached beside the module, or in numba's user cache where that is read-only). Where numba is
 missing or cannot compile (a platform without its wheels, an OS that refuses JIT memory),
 `kernel` gives None and the caller runs the formulation the loop replaced: the same values,
-~4 ms slower a frame (session 41), and one warning in the log. A field run does not stop for a speed-up.
+~6 ms slower a frame (all four loops, session 45), and one warning in the log. A field run does not stop for a speed-up.
 """
 
 from __future__ import annotations
