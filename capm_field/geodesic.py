@@ -85,7 +85,7 @@ def geodesic_tips(g0: np.ndarray, node: np.ndarray, plant: np.ndarray, size: flo
     return np.array([node[y, x] for y, x in chosen], int)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # (arrays: compared by identity)
 class GridGraph:
     """The 8-connected grid graph over a cost image's finite pixels (`grid_graph`): node k is
     the k-th finite pixel in row-major order; edge weight = length × mean of its two pixels' costs."""
@@ -156,8 +156,9 @@ def _bucket_dijkstra(cost, at, index, src, row, cmin, cmax):  # pragma: no cover
     distances cut into buckets narrower than the lightest edge (length ≥ 1 × mean cost ≥ cmin),
     so a node taken from the lowest non-empty bucket cannot be improved by any other node still
     queued, in whatever order the bucket is emptied: it is final, as in Dijkstra with a heap.
-    The same labels, ~2× faster than a binary heap and than scipy on plant graphs (2 000–6 000
-    nodes, session 45). A node improved again is queued again (stale entries skipped)."""
+    The same labels, ~2× faster than a binary heap and than scipy on 40 plant graphs from bench
+    frames (median ~3 200 nodes, 6 sources: 1.0 against 2.0 and 2.3 ms; session 45). A node
+    improved again is queued again (stale entries skipped)."""
     n = at.shape[0]
     out = np.full((src.shape[0], n), np.inf)
     off = np.array([-row - 1, -row, -row + 1, -1, 1, row - 1, row, row + 1], np.int64)
