@@ -163,12 +163,19 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         votes = axis_votes.axis_votes(vi, plant, size)
         n_peaks = axis_votes.vote_peaks(votes, size)
     compound = False
-    hubs = None
+    hubs = None  # three-lobed hubs the estimators below used (the tip-axes guard reads these only)
+    made: list = []  # the plant's `compound_hubs`, computed once, when first asked
+
+    def plant_hubs() -> tuple:
+        if not made:
+            made.append(compound_leaf.compound_hubs(plant, vi, soil, size))
+        return made[0]
+
     lone = None  # the centre end of a lone stalk between two leaf clusters (after compound_centre)
     if uv is None and n_peaks >= STALK_PEAKS:
         uv, lone = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
         if uv is None and lone is None and FINE_STALK_PX and max(X1 - X0, Y1 - Y0) >= FINE_STALK_PX:
-            hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
+            hubs = plant_hubs()
             if compound_leaf.has_compound_leaves(hubs):  # (a lone stalk found only there is not used: not measured)
                 uv, _ = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil, FINE_STALK_PX)
         if uv is not None:
@@ -177,8 +184,7 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # compound leaves (clover trefoils: leaf axes converge at several hubs) whose stalks do
         # not show: the rays back from the hubs (after the stalk estimators, which are exact
         # when they answer: 0.3–2 mm cases became 5–12 mm when this came first)
-        if hubs is None:
-            hubs = compound_leaf.compound_hubs(plant, vi, soil, size)
+        hubs = plant_hubs()
         if n_peaks < 2 and compound_leaf.strongest_hub(hubs) < ONE_PEAK_HUB:
             hubs = None
         else:
@@ -194,9 +200,9 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # compound leaves on petioles that meet in a V (one ridge, not two straight pieces, for
         # `petiole_centre` above): its arms apart, before the medians of the parts. Only for
         # compound leaves: for every plant of leaf clusters, field photos' seedlings, chickweed,
-        # dandelions and fat-hens moved both ways (0.013 → 0.44 S), grass and rosettes too. (Hubs made
-        # here are not kept in `hubs`: the tip-axes guard below reads only those the estimators above made)
-        if compound_leaf.has_compound_leaves(hubs if hubs is not None else compound_leaf.compound_hubs(plant, vi, soil, size)):
+        # dandelions and fat-hens moved both ways (0.013 → 0.44 S), grass and rosettes too. (Not kept in
+        # `hubs`: the tip-axes guard below reads only those the estimators above used)
+        if compound_leaf.has_compound_leaves(plant_hubs()):
             parts = parts or plant_centre.broad_parts(plant)
             uv = plant_centre.petiole_centre(plant, vi, soil, thr, parts, split=True)
             if uv is not None and not plant_centre.within_broad_hull(uv, parts):

@@ -93,6 +93,8 @@ class GridGraph:
     cost: np.ndarray  # the cost image padded by a border of ∞ (every pixel has 8 neighbours), float64
     at: np.ndarray  # node → flat position in `cost` (int64, increasing)
     index: np.ndarray  # flat position in `cost` → node, −1 where the cost is ∞ (int64)
+    cmin: float  # least and largest finite cost (the bucket queue's width and span; ∞ / 0 without nodes)
+    cmax: float
 
     @property
     def n(self) -> int:
@@ -116,12 +118,13 @@ class GridGraph:
 def grid_graph(cost: np.ndarray) -> tuple[GridGraph, np.ndarray]:
     """The 8-connected grid graph over the finite-cost pixels of `cost`, and the (h, w) map of
     each pixel's node (−1 where the cost is ∞)."""
-    h, w = cost.shape
     pc = np.pad(np.asarray(cost, np.float64), 1, constant_values=np.inf)
     at = np.flatnonzero(np.isfinite(pc))
     pn = np.full(pc.shape, -1, np.int64)
     pn.ravel()[at] = np.arange(len(at))
-    return GridGraph(pc, at, pn.ravel()), pn[1:-1, 1:-1]
+    c = pc.ravel().take(at)
+    lo, hi = (float(c.min()), float(c.max())) if len(c) else (math.inf, 0.0)
+    return GridGraph(pc, at, pn.ravel(), lo, hi), pn[1:-1, 1:-1]
 
 
 def distances(G: GridGraph, sources: Sequence[int]) -> np.ndarray:
@@ -134,11 +137,8 @@ def distances(G: GridGraph, sources: Sequence[int]) -> np.ndarray:
     the same float64 sums d(u) + w(u, v), so the same distances to the last bit
     (tests/test_geodesic.py)."""
     src = np.asarray(sources, np.int64).reshape(-1)
-    if _bucket_dijkstra is not None and G.n:
-        c = G.cost.ravel().take(G.at)
-        lo, hi = float(c.min()), float(c.max())
-        if lo > 0 and hi <= BUCKET_SPREAD * lo:
-            return _bucket_dijkstra(G.cost.ravel(), G.at, G.index, src, G.cost.shape[1], lo, hi)
+    if _bucket_dijkstra is not None and G.n and 0 < G.cmin and G.cmax <= BUCKET_SPREAD * G.cmin:
+        return _bucket_dijkstra(G.cost.ravel(), G.at, G.index, src, G.cost.shape[1], G.cmin, G.cmax)
     return dijkstra(G.csr(), directed=True, indices=src)
 
 

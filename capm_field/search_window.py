@@ -114,7 +114,7 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     if noise > DENOISE_FROM:
         # heavy sensor noise (dim light, high gain): max-pooled, the index of a noisy soil has
         # specks as green as a seedling. A median filter of the index image removes them and
-        # keeps edges (bench frames as rendered measure ≤ 6.8 here: 1 of seed 0's 300 is filtered)
+        # keeps edges (how often it runs, and what it moved: DENOISE_FROM)
         mid = cv2.medianBlur(mid, 3 if noise < 2 * DENOISE_FROM else 5)
         small = resize_down(mid, (small.shape[1], small.shape[0])) if mid.shape[:2] != small.shape[:2] else mid
 
