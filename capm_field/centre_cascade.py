@@ -16,7 +16,7 @@ import numpy as np
 from . import axis_votes, compound_leaf, fan_apex, leaf_axes, plant_centre, stalks, tree_median
 from .components import components
 from .roi import Roi, roi_mask
-from .vegetation import pooled_index, resize_down, vegetation_index
+from .vegetation import cap_clipped, pooled_index, resize_down, vegetation_index
 from .vegetation_mask import group_components, hysteresis
 
 PLANT_PX = 80  # stage 2 (find its centre): plant bounding box resampled to about this size
@@ -39,13 +39,14 @@ STALK_PEAKS = 2  # leaf-axis vote peaks (`axis_votes.vote_peaks`) from which sta
 
 def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
                  lab_index: bool, thr: float, soil: float,
-                 max_px: int = stalks.MAX_PX) -> tuple[np.ndarray | None, np.ndarray | None]:
+                 max_px: int = stalks.MAX_PX, cap: bool = False) -> tuple[np.ndarray | None, np.ndarray | None]:
     """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end) for a plant on the
     stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
     It works at the image's own pitch (stalks are 1–3 px wide there; coarser only for plant
     windows over `max_px`: stalks.MAX_PX, or FINE_STALK_PX in the second search), on a window
     reaching stalks.MARGIN × the plant's size round it (a clover's centre may lie outside the
-    leaves that stage 1 grouped); answers in stage-2 grid pixels."""
+    leaves that stage 1 grouped); answers in stage-2 grid pixels. `cap`: an over-exposed soil's
+    clipped pixels are capped at the soil level (`vegetation.cap_clipped`)."""
     if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
         return None, None
     nh, nw = plant.shape
@@ -62,6 +63,8 @@ def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant:
     p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
     grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
     vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
+    if cap:
+        cap_clipped(region, vi, soil)
     # the plant's mask onto this grid: stalk-grid pixel x ↔ image xa + (x + 0.5)·p_x − 0.5 ↔
     # stage-2 grid (xa + (x + 0.5)·p_x − 0.5 − X0 + 0.5) / kx − 0.5 (and the same for y)
     M = np.array([[p_x / kx, 0, (xa - X0 + 0.5 * p_x) / kx - 0.5], [0, p_y / ky, (ya - Y0 + 0.5 * p_y) / ky - 0.5]], np.float32)
@@ -86,7 +89,7 @@ def separate_parts(plant: np.ndarray) -> int:
 
 
 def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
-                   lab_index: bool = False, stage1: tuple | None = None):
+                   lab_index: bool = False, stage1: tuple | None = None, cap: bool = False):
     """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
     gets the name of the estimator that gave it under "method"."""
     H, W = img.shape[:2]
@@ -98,7 +101,7 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
     k = PLANT_PX / max(bx1 - bx0, by1 - by0)
     nw, nh = max(4, round(crop.shape[1] * k)), max(4, round(crop.shape[0] * k))
     kx, ky = crop.shape[1] / nw, crop.shape[0] / nh
-    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab_index, exact=True)
+    vi = pooled_index(crop, gains, (nw, nh), MID_PX_STAGE2, lab=lab_index, exact=True, cap=cap, cap_level=soil)
     inside = np.ones(vi.shape, bool)
     if roi is not None:
         inside = roi_mask(roi, vi.shape, X0, Y0, kx, ky)
@@ -173,11 +176,11 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
 
     lone = None  # the centre end of a lone stalk between two leaf clusters (after compound_centre)
     if uv is None and n_peaks >= STALK_PEAKS:
-        uv, lone = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil)
+        uv, lone = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil, cap=cap)
         if uv is None and lone is None and FINE_STALK_PX and max(X1 - X0, Y1 - Y0) >= FINE_STALK_PX:
             hubs = plant_hubs()
             if compound_leaf.has_compound_leaves(hubs):  # (a lone stalk found only there is not used: not measured)
-                uv, _ = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil, FINE_STALK_PX)
+                uv, _ = stalk_centre(img, X0, Y0, kx, ky, plant, gains, lab_index, thr, soil, FINE_STALK_PX, cap=cap)
         if uv is not None:
             method = "stalk_centre"
     if uv is None and (n_peaks >= 2 or n_peaks == 1 and separate_parts(plant) >= 2):

@@ -193,7 +193,7 @@ def _in_shadow_parts(image_bgr: np.ndarray, win: SearchWindow, debug: dict | Non
         n = int(np.count_nonzero(part))
         if n < 16 or np.count_nonzero(core) < 16:
             continue
-        sub = replace(win, inside=part, n_in=n, gains=soil_gains(win.small, core), soil=core)
+        sub = replace(win, inside=part, n_in=n, gains=soil_gains(win.small, core, win.overexposed), soil=core)
         dbg: dict | None = {} if debug is not None else None  # joins `debug` only if taken
         det, chosen = _looks(image_bgr, sub, dbg)
         if det.reason is not None or (other is not None and _boxes_meet([chosen["box"]], [other])):
@@ -323,7 +323,7 @@ def _locate(img: np.ndarray, win: SearchWindow, choice: Choice, debug: dict | No
     gx, gy, gw, gh = _grid_box(gmask)
     bx0, by0, bx1, by1 = mask_box(np.array([gx, gx + gw - 1]), np.array([gy, gy + gh - 1]), to_full)
     centre, tips, sharp = centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
-                                          stage1=(gmask, x0, y0, sx, sy))
+                                          stage1=(gmask, x0, y0, sx, sy), cap=win.overexposed)
     if centre is None:
         return Detection(None, 0.0, "no_plant")
 

@@ -22,7 +22,7 @@ from .components import components
 from .detection import Detection
 from .order_stats import elongation, median, percentile
 from .search_window import MID_PX_STAGE1, SearchWindow
-from .vegetation import pooled_index, vegetation_index
+from .vegetation import cap_clipped, pooled_index, unclipped, vegetation_index
 from .vegetation_mask import group_box, group_components, hysteresis, threshold
 
 AMBIGUOUS = 0.8  # runner-up score / best score above which the choice is "ambiguous" (see `capm_field.detector`)
@@ -57,10 +57,15 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
 
     # ---- vegetation mask
     gains = win.gains ** VIVID_WB if vivid else win.gains
-    vi = pooled_index(mid, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid)
+    vi = pooled_index(mid, gains, (small.shape[1], small.shape[0]), MID_PX_STAGE1, lab=vivid, cap=win.overexposed)
     # soil statistics from every other row and column: the same percentiles in a quarter of the time
     at = inside if win.soil is None else win.soil
     n_at = n_in if win.soil is None else int(np.count_nonzero(at))
+    if win.overexposed:  # the soil's statistics from its unclipped pixels (`vegetation.cap_clipped`)
+        at_ok = at & (unclipped(small) > 0)
+        n_ok = int(np.count_nonzero(at_ok))
+        if n_ok >= max(256, 0.1 * n_at):
+            at, n_at = at_ok, n_ok
     thr, soil_level, contrast = threshold(vi[::2, ::2][at[::2, ::2]] if n_at >= 4096 else vi[at])
     mask = hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = components(mask)
@@ -157,6 +162,8 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
             fx0, fy0, fx1, fy1 = mask_box(xs, ys, to_full)
             sub = img[max(int(fy0), 0):int(math.ceil(fy1)) + 1, max(int(fx0), 0):int(math.ceil(fx1)) + 1]
             vf = vegetation_index(sub, gains=gains, lab=vivid)
+            if win.overexposed:
+                cap_clipped(sub, vf, soil_level)
             mf = vf > 0.5 * (thr + soil_level)
             f["mass_full"] = float(np.count_nonzero(mf)) / (sx * sy)
             yy, xx = np.nonzero(mf)

@@ -17,7 +17,7 @@ import numpy as np
 
 from .detection import Detection
 from .roi import ROI_MARGIN, Roi, RoiLike, as_roi, roi_mask
-from .vegetation import downscale, resize_down, soil_gains
+from .vegetation import SOIL_CLIPPED, downscale, overexposed_share, resize_down, soil_gains
 
 WORK_PX = 320  # stage 1 (find the plant): longest side of the search window after downscaling
 MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is computed on (stage 1)
@@ -43,6 +43,7 @@ class SearchWindow:
     gains: np.ndarray  # soil white balance of the first look (`soil_gains`)
     soil: np.ndarray | None = None  # where the soil statistics are measured, if not all of `inside`
     noise: float = 0.0  # the index image's pixel-scale colour noise (`chroma_noise` ÷ the resampling factor)
+    overexposed: bool = False  # ≥ SOIL_CLIPPED of the ROI has red or blue clipped (`vegetation.cap_clipped`)
 
     def to_full(self, p: np.ndarray) -> np.ndarray:
         """Stage-1 grid point (j, i) → full image (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
@@ -124,7 +125,9 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     n_in = int(np.count_nonzero(inside))
     if roi is not None and n_in < 16:
         return bad
-    return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside), noise=noise)
+    over = overexposed_share(small, inside) >= SOIL_CLIPPED
+    return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside, over), noise=noise,
+                        overexposed=over)
 
 
 FLAT_RANGE = 16  # grey levels: a blank frame under sensor noise σ ≤ 5 stays within it on the stage-1 grid

@@ -19,13 +19,14 @@ from .order_stats import median, row_medians
 SOIL_REF = np.array([0.27, 0.33, 0.40], np.float32)  # typical soil chromaticity (B, G, R)
 
 
-def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
+def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None, overexposed: bool = False) -> np.ndarray:
     """Per-channel gains mapping the scene's soil to a typical soil colour (von Kries).
 
     The soil reference is the median colour of the less-green half of the pixels, so a colour
     cast of the light or the camera's white balance is removed before judging greenness. Gains
     are bounded (GAIN_MIN..GAIN_MAX) so a frame filled with leaves cannot be "corrected" into soil
-    and a yellow or red soil is not made grey.
+    and a yellow or red soil is not made grey. On an over-exposed soil (`overexposed_share`) the
+    pixels whose red or blue is clipped are left out: their colour is not the soil's.
     """
     # a sample of ~20 000 pixels is enough for medians: stride the grid before masking
     k = max(1, int(math.sqrt(bgr.shape[0] * bgr.shape[1] / 20000)))
@@ -33,6 +34,10 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
     # rows picked by index (`take`): the same pixels as a boolean mask over (h, w, 3), ~2× faster
     px = np.ascontiguousarray(sub).reshape(-1, 3)
     f = (px if inside is None else px.take(np.flatnonzero(inside[::k, ::k]), axis=0)).astype(np.float32)
+    if overexposed:
+        ok = np.flatnonzero(np.maximum(f[:, 0], f[:, 2]) < CLIP_LEVEL)
+        if 4 * len(ok) >= len(f):
+            f = f.take(ok, axis=0)
     gs = greenness(f[None])[0]
     soil = f.take(np.flatnonzero(gs <= median(gs)), axis=0)
     ref = row_medians(np.ascontiguousarray(soil.T)) + 1.0
@@ -229,18 +234,57 @@ def downscale(bgr: np.ndarray, max_px: int, exact: bool = False) -> np.ndarray:
     return resize_down(bgr, (max(1, round(w / g)), max(1, round(h / g))), exact)
 
 
+# Over-exposure. Where red or blue is clipped their true level is higher than recorded, so G* and −a*
+# (both fall as red or blue rises) are upper bounds only; white balance gains < 1 turn clipped white
+# or yellow soil green. On bench soils that are over-exposed (sand in the sun: 20–50 % of the window
+# clipped) those pixels spread the soil's index and push the threshold over an olive or yellow-green
+# weed; on photos with a few clipped highlights (≤ 2 % of the frame, often on the leaves themselves)
+# nothing is changed. (Session 47: bench seeds 0–7 and field photos; docs/perception.md §2.)
+CLIP_LEVEL = 250  # an 8-bit channel at or above this is taken as clipped
+SOIL_CLIPPED = 0.1  # share of the window with red or blue clipped from which the soil is over-exposed
+
+
+def unclipped(bgr: np.ndarray) -> np.ndarray:
+    """uint8 mask of a BGR image: 255 where neither red nor blue reaches CLIP_LEVEL."""
+    return cv2.inRange(bgr, (0, 0, 0), (CLIP_LEVEL - 1, 255, CLIP_LEVEL - 1))
+
+
+def overexposed_share(bgr: np.ndarray, inside: np.ndarray | None = None) -> float:
+    """Share of the pixels (within `inside`) whose red or blue is clipped."""
+    bad = unclipped(bgr) == 0
+    if inside is None:
+        return float(np.count_nonzero(bad)) / max(bad.size, 1)
+    return float(np.count_nonzero(bad & inside)) / max(int(np.count_nonzero(inside)), 1)
+
+
+def cap_clipped(bgr: np.ndarray, vi: np.ndarray, level: float | None = None) -> None:
+    """Cap the index `vi` of `bgr` (same shape) at `level` where red or blue is clipped (an upper
+    bound there), in place. `level` None: the median index of the unclipped pixels."""
+    ok = unclipped(bgr)
+    n_ok = cv2.countNonZero(ok)
+    if n_ok == ok.size or (level is None and n_ok == 0):
+        return
+    if level is None:
+        level = float(median(vi[ok > 0]))
+    bad = ok == 0
+    vi[bad] = np.minimum(vi[bad], np.float32(level))
+
+
 def pooled_index(bgr: np.ndarray, gains: np.ndarray, size: tuple[int, int], mid_px: int, lab: bool = False,
-                 exact: bool = False) -> np.ndarray:
+                 exact: bool = False, cap: bool = False, cap_level: float | None = None) -> np.ndarray:
     """Vegetation index of `bgr` on a coarser grid `size` (w, h), thin parts kept (max-pooling).
 
     Averaging colours before judging greenness dilutes 1–2 px stems, petioles and grass blades
     into the soil. The index is computed at an intermediate resolution (the input itself if it
     has at most `mid_px` pixels, else downscaled to that), lightly smoothed against sensor noise,
     then max-pooled (grey dilation over one output cell, then area resampling) to `size`.
+    `cap`: the index of clipped pixels is capped first (`cap_clipped`, at `cap_level`).
     """
     nw, nh = size
     mid = downscale(bgr, mid_px, exact)
     vi = vegetation_index(mid, gains=gains, lab=lab)
+    if cap:
+        cap_clipped(mid, vi, cap_level)
     # blur and dilate in place (same values): no further full-size temporaries
     cv2.GaussianBlur(vi, (0, 0), 0.7, dst=vi)
     f = mid.shape[1] / nw
