@@ -245,6 +245,9 @@ def test_mission_name_is_printable_text(tmp_path, capsys):
 
 _INTERRUPT = """\
 import os, signal, sys, time
+# Ctrl-C as in a terminal: a shell's background job (`cmd &`) starts its children with SIGINT
+# ignored, and Python then installs no KeyboardInterrupt handler
+signal.signal(signal.SIGINT, signal.default_int_handler)
 import mission.executive as ex
 real = ex.Executive._check_startup
 def interrupted(self):
