@@ -190,10 +190,12 @@ def _in_shadow_parts(image_bgr: np.ndarray, win: SearchWindow, debug: dict | Non
     only a plant whose box does not meet it and that scores above `beat` counts."""
     best: tuple[float, Detection, dict | None] | None = None
     for part, core in shadow_regions(win.small, win.inside):
+        if win.clipped is not None:  # over-exposed soil: its statistics from the unclipped pixels
+            core = core & ~win.clipped
         n = int(np.count_nonzero(part))
         if n < 16 or np.count_nonzero(core) < 16:
             continue
-        sub = replace(win, inside=part, n_in=n, gains=soil_gains(win.small, core, win.overexposed), soil=core)
+        sub = replace(win, inside=part, n_in=n, gains=soil_gains(win.small, core), soil=core)
         dbg: dict | None = {} if debug is not None else None  # joins `debug` only if taken
         det, chosen = _looks(image_bgr, sub, dbg)
         if det.reason is not None or (other is not None and _boxes_meet([chosen["box"]], [other])):

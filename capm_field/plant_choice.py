@@ -22,7 +22,7 @@ from .components import components
 from .detection import Detection
 from .order_stats import elongation, median, percentile
 from .search_window import MID_PX_STAGE1, SearchWindow
-from .vegetation import cap_clipped, pooled_index, unclipped, vegetation_index
+from .vegetation import cap_clipped, pooled_index, vegetation_index
 from .vegetation_mask import group_box, group_components, hysteresis, threshold
 
 AMBIGUOUS = 0.8  # runner-up score / best score above which the choice is "ambiguous" (see `capm_field.detector`)
@@ -61,11 +61,6 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
     # soil statistics from every other row and column: the same percentiles in a quarter of the time
     at = inside if win.soil is None else win.soil
     n_at = n_in if win.soil is None else int(np.count_nonzero(at))
-    if win.overexposed:  # the soil's statistics from its unclipped pixels (`vegetation.cap_clipped`)
-        at_ok = at & (unclipped(small) > 0)
-        n_ok = int(np.count_nonzero(at_ok))
-        if n_ok >= max(256, 0.1 * n_at):
-            at, n_at = at_ok, n_ok
     thr, soil_level, contrast = threshold(vi[::2, ::2][at[::2, ::2]] if n_at >= 4096 else vi[at])
     mask = hysteresis(vi, thr, soil_level, inside)
     n, lab, stats, cents = components(mask)

@@ -17,7 +17,7 @@ import numpy as np
 
 from .detection import Detection
 from .roi import ROI_MARGIN, Roi, RoiLike, as_roi, roi_mask
-from .vegetation import SOIL_CLIPPED, downscale, overexposed_share, resize_down, soil_gains
+from .vegetation import CLIP_LEVEL, SOIL_CLIPPED, downscale, resize_down, soil_gains, unclipped
 
 WORK_PX = 320  # stage 1 (find the plant): longest side of the search window after downscaling
 MID_PX_STAGE1 = 250_000  # pixels of the intermediate image the index is computed on (stage 1)
@@ -41,9 +41,14 @@ class SearchWindow:
     inside: np.ndarray  # ROI mask on the stage-1 grid
     n_in: int  # its pixel count
     gains: np.ndarray  # soil white balance of the first look (`soil_gains`)
-    soil: np.ndarray | None = None  # where the soil statistics are measured, if not all of `inside`
+    soil: np.ndarray | None = None  # where the soil statistics are measured, if not all of `inside` (a shadow's part, unclipped soil)
     noise: float = 0.0  # the index image's pixel-scale colour noise (`chroma_noise` ÷ the resampling factor)
-    overexposed: bool = False  # ≥ SOIL_CLIPPED of the ROI has red or blue clipped (`vegetation.cap_clipped`)
+    clipped: np.ndarray | None = None  # over-exposed soil: where red or blue is clipped on the stage-1 grid, if
+    # that is ≥ SOIL_CLIPPED of the ROI (`vegetation.cap_clipped`); None otherwise
+
+    @property
+    def overexposed(self) -> bool:
+        return self.clipped is not None
 
     def to_full(self, p: np.ndarray) -> np.ndarray:
         """Stage-1 grid point (j, i) → full image (x0 + (j + ½)·sx − ½, y0 + (i + ½)·sy − ½)."""
@@ -97,7 +102,7 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     # flat = no variation in any channel (a green leaf can have the soil's grey level exactly)
     std = float(cv2.meanStdDev(small)[1].max())
     b_, g_, r_ = cv2.split(small)
-    sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= 250)) / gray.size  # clipped to white
+    sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= CLIP_LEVEL)) / gray.size  # clipped to white
     # (flat: also no pixel off by FLAT_RANGE, which a plant of a few grid pixels is, however small)
     flat = std < 1.5 and int(np.ptp(small.reshape(-1, 3), axis=0).max()) < FLAT_RANGE
     if mean < 12 or sat > 0.6 or flat or mean > 245:
@@ -125,9 +130,15 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     n_in = int(np.count_nonzero(inside))
     if roi is not None and n_in < 16:
         return bad
-    over = overexposed_share(small, inside) >= SOIL_CLIPPED
-    return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside, over), noise=noise,
-                        overexposed=over)
+    # over-exposed soil: white balance and soil statistics from the unclipped pixels (`soil`), and the
+    # clipped pixels' index capped (`clipped`, read by the looks and stage 2)
+    clipped = unclipped(small) == 0
+    n_clip = int(np.count_nonzero(clipped & inside))
+    if n_clip < SOIL_CLIPPED * n_in:
+        return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside), noise=noise)
+    soil = inside & ~clipped if n_in - n_clip >= max(256, 0.1 * n_in) else None
+    return SearchWindow(roi, x0, y0, x1, y1, mid, small, sx, sy, inside, n_in, soil_gains(small, inside if soil is None else soil),
+                        soil=soil, noise=noise, clipped=clipped)
 
 
 FLAT_RANGE = 16  # grey levels: a blank frame under sensor noise σ ≤ 5 stays within it on the stage-1 grid

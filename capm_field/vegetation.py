@@ -19,14 +19,14 @@ from .order_stats import median, row_medians
 SOIL_REF = np.array([0.27, 0.33, 0.40], np.float32)  # typical soil chromaticity (B, G, R)
 
 
-def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None, overexposed: bool = False) -> np.ndarray:
+def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None) -> np.ndarray:
     """Per-channel gains mapping the scene's soil to a typical soil colour (von Kries).
 
     The soil reference is the median colour of the less-green half of the pixels, so a colour
     cast of the light or the camera's white balance is removed before judging greenness. Gains
     are bounded (GAIN_MIN..GAIN_MAX) so a frame filled with leaves cannot be "corrected" into soil
-    and a yellow or red soil is not made grey. On an over-exposed soil (`overexposed_share`) the
-    pixels whose red or blue is clipped are left out: their colour is not the soil's.
+    and a yellow or red soil is not made grey. (On an over-exposed soil the caller leaves the
+    clipped pixels out of `inside`: their colour is not the soil's; `search_window`.)
     """
     # a sample of ~20 000 pixels is enough for medians: stride the grid before masking
     k = max(1, int(math.sqrt(bgr.shape[0] * bgr.shape[1] / 20000)))
@@ -34,10 +34,6 @@ def soil_gains(bgr: np.ndarray, inside: np.ndarray | None = None, overexposed: b
     # rows picked by index (`take`): the same pixels as a boolean mask over (h, w, 3), ~2× faster
     px = np.ascontiguousarray(sub).reshape(-1, 3)
     f = (px if inside is None else px.take(np.flatnonzero(inside[::k, ::k]), axis=0)).astype(np.float32)
-    if overexposed:
-        ok = np.flatnonzero(np.maximum(f[:, 0], f[:, 2]) < CLIP_LEVEL)
-        if 4 * len(ok) >= len(f):
-            f = f.take(ok, axis=0)
     gs = greenness(f[None])[0]
     soil = f.take(np.flatnonzero(gs <= median(gs)), axis=0)
     ref = row_medians(np.ascontiguousarray(soil.T)) + 1.0
@@ -247,14 +243,6 @@ SOIL_CLIPPED = 0.1  # share of the window with red or blue clipped from which th
 def unclipped(bgr: np.ndarray) -> np.ndarray:
     """uint8 mask of a BGR image: 255 where neither red nor blue reaches CLIP_LEVEL."""
     return cv2.inRange(bgr, (0, 0, 0), (CLIP_LEVEL - 1, 255, CLIP_LEVEL - 1))
-
-
-def overexposed_share(bgr: np.ndarray, inside: np.ndarray | None = None) -> float:
-    """Share of the pixels (within `inside`) whose red or blue is clipped."""
-    bad = unclipped(bgr) == 0
-    if inside is None:
-        return float(np.count_nonzero(bad)) / max(bad.size, 1)
-    return float(np.count_nonzero(bad & inside)) / max(int(np.count_nonzero(inside)), 1)
 
 
 def cap_clipped(bgr: np.ndarray, vi: np.ndarray, level: float | None = None) -> None:
