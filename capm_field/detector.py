@@ -44,6 +44,7 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from .centre_cascade import centre_fullres
+from .components import components
 from .detection import Detection, Reason, ground_centre
 from .plant_choice import AMBIGUOUS, Choice, choose, mask_box
 from .roi import Roi, RoiLike, roi_from_troi
@@ -273,6 +274,29 @@ def _grid_box(mask: np.ndarray) -> tuple[int, int, int, int]:
     return cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
 
 
+def _box_parts(mask: np.ndarray) -> np.ndarray:
+    """The parts of a plant's stage-1 mask that set stage 2's box: without the specks that stage 1's
+    grouping chained to a large plant (each joined speck widens the group, and with it the gap the
+    next may cross). Stage 2 resamples the box to ~PLANT_PX across, so specks far out coarsen the
+    plant itself: a clover of 13 300 full-image px grouped with nine specks (each ≤ 2 % of the group)
+    had a box 3.2× its own, its 2 px petioles vanished and its centre landed on a leaflet, 57.6 mm
+    off (bench seed 7 case 27; 0.8 mm with this). A speck here: a part < SPECK_SHARE of the mask's
+    area lying > SPECK_GAP × the larger parts' diameter from them; the box is made without specks
+    only when they inflate its diagonal ≥ SPECK_INFLATION× (smaller changes of the grid only move
+    answers either way). The specks stay in the mask (stage 2 keeps what falls in its crop)."""
+    n, lab, stats, _ = components(mask)
+    if n <= 2:
+        return mask
+    area = stats[1:, cv2.CC_STAT_AREA]
+    big = 1 + np.flatnonzero(area >= SPECK_SHARE * area.sum())
+    core = np.isin(lab, big)
+    diam = math.hypot(*_grid_box(core)[2:])
+    dist = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, 3)
+    near = [c for c in range(1, n) if c not in big and float(dist[lab == c].min()) <= SPECK_GAP * diam]
+    core |= np.isin(lab, near)
+    return core if math.hypot(*_grid_box(mask)[2:]) >= SPECK_INFLATION * math.hypot(*_grid_box(core)[2:]) else mask
+
+
 def _merge_gap(f: dict, f0: dict | None) -> float:
     """How far (× the union's diameter) candidate `f` may lie from the best candidate `f0`'s
     union to join it: MERGE_GAP, or MERGE_GAP_SAME if it has f0's colour (a clover's trefoils on
@@ -322,7 +346,7 @@ def _locate(img: np.ndarray, win: SearchWindow, choice: Choice, debug: dict | No
         debug["mask_full"] = full
 
     # ---- stage 2: centre on a plant-normalised grid from the full-resolution crop
-    gx, gy, gw, gh = _grid_box(gmask)
+    gx, gy, gw, gh = _grid_box(_box_parts(gmask))
     bx0, by0, bx1, by1 = mask_box(np.array([gx, gx + gw - 1]), np.array([gy, gy + gh - 1]), to_full)
     centre, tips, sharp = centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
                                           stage1=(gmask, x0, y0, sx, sy), cap=win.overexposed)
@@ -346,6 +370,10 @@ def _locate(img: np.ndarray, win: SearchWindow, choice: Choice, debug: dict | No
     return Detection(pix, float(np.clip(conf, 0.0, 1.0)))
 
 
+SPECK_SHARE, SPECK_GAP, SPECK_INFLATION = 0.02, 0.2, 1.25  # `_box_parts` (session 48; bench seeds 0–7: wrong
+# 37 → 36, 33 answers moved, 22 by > 1 mm: 15 better, 7 worse; fresh seeds 8–11: wrong 29 → 28, 7 better, 5 worse
+# (a rosette 7.9 → 101.6 mm: a leaf's midrib read as a petiole on the finer grid). Without the inflation gate
+# (every box without its specks): 47 moved by > 1 mm on seeds 0–7, wrong 37, a rosette 18.5 → 47.3 mm)
 MERGE_GAP = 0.5  # ... unless the contenders lie within this × the union's diameter: one plant
 # (seed 1 case 207: a clover in two halves 0.38 diameters apart; 0.7 joined a third plant)
 PART_MERGE = 0.3  # with a ROI, candidates scoring ≥ this × the best also join it within MERGE_GAP (bench
