@@ -50,6 +50,10 @@ class CanIgniter(Igniter):
         self._status_stamp = 0
         self._status_n = 0  # IGN_STATUS frames received (start-up counter sync waits on it)
         self._closed = False
+        # sending a command and checking `_closed` are one step under `_tx`: close() sets `_closed`
+        # under it before its EXTINGUISH, so no IGNITE keep-alive of an ignite() running in another
+        # thread can follow that EXTINGUISH (one did, under load, and re-lit the board)
+        self._tx = threading.Lock()
         self.keepalives_sent = 0
         self.last_keepalive_ns: int | None = None
         self.disarmed_by: str | None = None  # Event in the status where Armed last went 1 -> 0
@@ -102,9 +106,10 @@ class CanIgniter(Igniter):
         return IGN_FAULTS.get(code) or f"fault_{code}"  # a latched fault is always reported
 
     def _command(self, cmd: int) -> bool:
-        if self._closed and cmd not in (IGN_EXTINGUISH, IGN_DISARM):
-            return False
-        return self.link.send(self.link.encoder.encode("IGN_CMD", {"Command": cmd}))
+        with self._tx:
+            if self._closed and cmd not in (IGN_EXTINGUISH, IGN_DISARM):
+                return False
+            return self.link.send(self.link.encoder.encode("IGN_CMD", {"Command": cmd}))
 
     def _wait(self, pred: Callable[[], bool], deadline: float, what: str) -> None:
         wait_for(self._cv, self.link, pred, deadline, what)
@@ -235,10 +240,11 @@ class CanIgniter(Igniter):
         return self.link.receiver.stats
 
     def close(self) -> None:
-        if self._closed:
-            return
+        with self._tx:
+            if self._closed:
+                return
+            self._closed = True  # first: from here only EXTINGUISH and DISARM go out
         try:
             self.extinguish()
         finally:
-            self._closed = True
             self.link.close()

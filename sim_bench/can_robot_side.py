@@ -148,6 +148,9 @@ class CanRobotSide:
                 self.board.tick(now)
                 self._watch_host(now)
                 self._transmit(now, due)
+        # frames on the bus before close() are received (a board's receiver is an interrupt): a
+        # host's last EXTINGUISH, sent just before the bench stops, must not be lost with the thread
+        self._drain()
 
     def _drain(self, limit: int = 512) -> None:
         """Take the frames already on the bus before the timer runs. A board's receiver is an

@@ -20,6 +20,7 @@ from capm_field.robot_model import RobotModel
 from drivers.can.codec import (
     IGN_ARM,
     PAIR_WINDOW_S,
+    IGN_EXTINGUISH,
     IGN_IGNITE,
     Encoder,
     Receiver,
@@ -283,6 +284,58 @@ def test_clean_shutdown_no_threads_left_and_no_hang():
     time.sleep(0.1)
     assert threading.active_count() <= base
     assert not any(ch.startswith("capm-") and q for ch, q in virt.channels.items())
+
+
+def test_no_ignite_keepalive_follows_close_extinguish():
+    """close() while ignite() runs in another thread: the EXTINGUISH that close() sends is the host's
+    last word. An IGNITE keep-alive held up between the adapter's 'closed?' check and its send (a
+    descheduled thread, as on a busy machine) must not go out after it. Made certain here: that
+    send waits for close()'s EXTINGUISH, and returns only once the link is closed, so that ignite()'s
+    own EXTINGUISH on the way out cannot be sent any more. Before the fix the IGNITE was the last
+    command sent and the bench board's valve stayed open (a CI run, under load)."""
+    db = database()
+    with CanBench() as bench:
+        ign = bench.igniter
+        ign.arm(timeout=1.0)
+        sent: list[int] = []
+        real_send, real_close = ign.link.send, ign.link.close
+        hold, held, extinguished, late, closed = (threading.Event() for _ in range(5))
+
+        def send(msg):
+            cmd = None
+            if db.get_message_by_frame_id(msg.arbitration_id).name == "IGN_CMD":
+                cmd = int(db.decode_message(msg.arbitration_id, msg.data, decode_choices=False)["Command"])
+            stalled = cmd == IGN_IGNITE and hold.is_set() and not held.is_set()
+            if stalled:
+                held.set()
+                extinguished.wait(0.5)  # descheduled after the check, until close() has sent EXTINGUISH
+            if cmd == IGN_EXTINGUISH:
+                extinguished.set()
+            ok = real_send(msg)
+            if cmd is not None and ok:  # (sent: on the bus)
+                sent.append(cmd)
+            if stalled:
+                late.set()
+                closed.wait(1.0)
+            return ok
+
+        def close():
+            late.wait(0.5)
+            real_close()
+            closed.set()
+
+        ign.link.send, ign.link.close = send, close
+        th = threading.Thread(target=lambda: _ignite_quiet(bench), daemon=True)
+        th.start()
+        assert wait_for(lambda: IGN_IGNITE in sent, 2.0)
+        hold.set()
+        assert held.wait(2.0)
+        ign.close()
+        th.join(3.0)
+        assert not th.is_alive()
+        last_off = len(sent) - 1 - sent[::-1].index(IGN_EXTINGUISH)
+        assert IGN_IGNITE not in sent[last_off:], sent[-6:]
+        assert wait_for(lambda: not bench.robot_side.board.valve_open, 1.0)
 
 
 def _ignite_quiet(bench: CanBench) -> None:
