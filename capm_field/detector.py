@@ -288,13 +288,20 @@ def _box_parts(mask: np.ndarray) -> np.ndarray:
     if n <= 2:
         return mask
     area = stats[1:, cv2.CC_STAT_AREA]
-    big = 1 + np.flatnonzero(area >= SPECK_SHARE * area.sum())
-    core = np.isin(lab, big)
+    small = area < SPECK_SHARE * area.sum()
+    if small.all():  # (over 50 parts, none of them large: no plant to leave specks out of)
+        return mask
+    core = np.isin(lab, 1 + np.flatnonzero(~small))
+    whole = math.hypot(*_grid_box(mask)[2:])
     diam = math.hypot(*_grid_box(core)[2:])
+    if whole < SPECK_INFLATION * diam:  # (the near specks added below only widen the core's box)
+        return mask
     dist = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, 3)
-    near = [c for c in range(1, n) if c not in big and float(dist[lab == c].min()) <= SPECK_GAP * diam]
-    core |= np.isin(lab, near)
-    return core if math.hypot(*_grid_box(mask)[2:]) >= SPECK_INFLATION * math.hypot(*_grid_box(core)[2:]) else mask
+    for c in 1 + np.flatnonzero(small):
+        x, y, w, h = stats[c, :4]
+        if float(dist[y:y + h, x:x + w][lab[y:y + h, x:x + w] == c].min()) <= SPECK_GAP * diam:
+            core |= lab == c
+    return core if whole >= SPECK_INFLATION * math.hypot(*_grid_box(core)[2:]) else mask
 
 
 def _merge_gap(f: dict, f0: dict | None) -> float:

@@ -49,9 +49,10 @@ def test_specks_that_belong_or_barely_widen_it_stay(where: str) -> None:
     assert (gap > detector.SPECK_GAP * diam) == (where == "small inflation")
     assert math.hypot(*_box(m)[2:]) < detector.SPECK_INFLATION * diam
     assert np.array_equal(detector._box_parts(m), m)
-    if where != "small inflation":  # (it stays in the box even where it widens it more)
-        m[119:122, 230:233] = True  # a far speck that does
-        assert np.array_equal(detector._box_parts(m), _plant() | (m & (np.arange(240) < 200)[None, :]))
+    if where != "small inflation":  # (it stays in the box even where a far speck widens it more)
+        kept = m.copy()
+        m[119:122, 230:233] = True
+        assert np.array_equal(detector._box_parts(m), kept)
 
 
 def test_a_plant_of_several_large_parts_keeps_them_all() -> None:
@@ -61,6 +62,16 @@ def test_a_plant_of_several_large_parts_keeps_them_all() -> None:
     for c in ((40, 40), (200, 60), (120, 200)):
         cv2.circle(m, c, 12, 1, -1)
     m = m.astype(bool)
+    assert np.array_equal(detector._box_parts(m), m)
+
+
+def test_a_mask_of_specks_only_is_kept_whole() -> None:
+    """Sixty equal specks (each under SPECK_SHARE): no larger part to measure from, the mask stays."""
+    m = np.zeros((240, 240), bool)
+    for k in range(60):
+        y, x = 10 + 22 * (k // 6), 10 + 40 * (k % 6)
+        m[y:y + 2, x:x + 2] = True
+    assert detector.components(m)[0] == 61
     assert np.array_equal(detector._box_parts(m), m)
 
 
