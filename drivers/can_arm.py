@@ -9,6 +9,7 @@ halves are discarded.
 Outcomes: MoveResult(ok=False, reason) for motion failures (joint_limit, ik_failed, gateway
 fault codes), DriverTimeout when `timeout` runs out, LinkLost when the gateway heartbeat stops
 (or the bus fails); every failure path sends STOP (best effort) before returning or raising.
+`close()` sends STOP as the host's last word: no target or command of another thread follows it.
 Start-up: the constructor synchronises the ARM_CMD counter with NOPs (`sync_counter`, can.md
 "Host start-up"), so after a host restart the gateway accepts the first command (RESET_FAULT of
 the HOST_LOST it latched, ENABLE). The target stream needs no sync frames: its first set after a
@@ -80,6 +81,10 @@ class CanArm(Arm):
         self._status_seen = False
         self._status_n = 0  # ARM_STATUS frames received (start-up counter sync waits on it)
         self._closed = False
+        # sending and checking `_closed` are one step under `_tx` (as in CanIgniter): close() sets
+        # `_closed` under it, so no target or command of a thread that passed an earlier check can
+        # follow close()'s STOP (a target after STOP puts the gateway back into TRACKING)
+        self._tx = threading.Lock()
         self.last_stream = StreamStats()
         self.link = CanLink(
             self.cfg.bus,
@@ -157,7 +162,11 @@ class CanArm(Arm):
             raise
 
     def _command(self, cmd: int) -> None:
-        self.link.send(self.link.encoder.encode("ARM_CMD", {"Command": cmd}))
+        """Send ARM_CMD `cmd`; once closed only STOP goes out (anything else raises LinkLost)."""
+        with self._tx:
+            if self._closed and cmd != ARM_STOP:
+                raise LinkLost("adapter closed")
+            self.link.send(self.link.encoder.encode("ARM_CMD", {"Command": cmd}))
 
     def _wait(self, pred: Callable[[], bool], deadline: float, what: str, on_poll: Callable[[], None] | None = None) -> None:
         wait_for(self._cv, self.link, pred, deadline, what, on_poll)
@@ -185,11 +194,15 @@ class CanArm(Arm):
         self._wait(lambda: bool(self._status["Enabled"]) or self.fault is not None, min(deadline, time.monotonic() + self.cfg.enable_timeout), "arm enable")
 
     def _send_target(self, q: np.ndarray) -> None:
+        """One ARM_TARGET_A/B set, both halves under `_tx` (no command between them); LinkLost once closed."""
         enc = self.link.encoder
-        c = enc.next_counter("ARM_TARGET_A")
-        enc.next_counter("ARM_TARGET_B")  # both ids advance together (shared value)
-        self.link.send(enc.encode("ARM_TARGET_A", {"J1_Target": q[0], "J2_Target": q[1], "J3_Target": q[2]}, counter=c))
-        self.link.send(enc.encode("ARM_TARGET_B", {"J4_Target": q[3], "J5_Target": q[4], "J6_Target": q[5]}, counter=c))
+        with self._tx:
+            if self._closed:
+                raise LinkLost("adapter closed")
+            c = enc.next_counter("ARM_TARGET_A")
+            enc.next_counter("ARM_TARGET_B")  # both ids advance together (shared value)
+            self.link.send(enc.encode("ARM_TARGET_A", {"J1_Target": q[0], "J2_Target": q[1], "J3_Target": q[2]}, counter=c))
+            self.link.send(enc.encode("ARM_TARGET_B", {"J4_Target": q[3], "J5_Target": q[4], "J6_Target": q[5]}, counter=c))
 
     def _fail(self, reason: str) -> MoveResult:
         self._command(ARM_STOP)
@@ -328,9 +341,10 @@ class CanArm(Arm):
         return self.link.receiver.stats
 
     def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+        with self._tx:
+            if self._closed:
+                return
+            self._closed = True  # first: from here only STOP goes out
         try:
             self._command(ARM_STOP)  # hold, not DISABLE: a disabled Z1 has no holding torque
         finally:

@@ -18,6 +18,7 @@ import pytest
 from capm_field.config import ArmConfig, RobotConfig
 from capm_field.robot_model import RobotModel
 from drivers.can.codec import (
+    ARM_STOP,
     IGN_ARM,
     PAIR_WINDOW_S,
     IGN_EXTINGUISH,
@@ -336,6 +337,64 @@ def test_no_ignite_keepalive_follows_close_extinguish():
         last_off = len(sent) - 1 - sent[::-1].index(IGN_EXTINGUISH)
         assert IGN_IGNITE not in sent[last_off:], sent[-6:]
         assert wait_for(lambda: not bench.robot_side.board.valve_open, 1.0)
+
+
+def test_no_arm_target_follows_close_stop():
+    """close() while a move streams in another thread: close()'s STOP is the host's last word to
+    the gateway. A target set held up between the stream's 'closed?' check and its send must not
+    go out after the STOP: the gateway takes a set in HOLDING and goes back to TRACKING. Made
+    certain as for the igniter: that send waits (up to 0.5 s) for close()'s STOP, and returns only
+    once the link is closed. Before the fix the last frames were [STOP, TARGET_A, TARGET_B]."""
+    db = database()
+    names = {db.get_message_by_name(n).frame_id: n for n in ("ARM_CMD", "ARM_TARGET_A", "ARM_TARGET_B")}
+    with CanBench() as bench:
+        arm = bench.arm
+        sent: list[str] = []
+        real_send, real_close = arm.link.send, arm.link.close
+        hold, held, stopped, late, closed = (threading.Event() for _ in range(5))
+
+        def send(msg):
+            name = names.get(msg.arbitration_id)
+            if name == "ARM_CMD":
+                cmd = int(db.decode_message(msg.arbitration_id, msg.data, decode_choices=False)["Command"])
+                name = "STOP" if cmd == ARM_STOP else f"CMD{cmd}"
+            stalled = name == "ARM_TARGET_A" and hold.is_set() and not held.is_set()
+            if stalled:
+                held.set()
+                stopped.wait(0.5)  # descheduled after the check, until close() has sent STOP
+            ok = real_send(msg)
+            if name is not None and ok:
+                sent.append(name)
+            if name == "STOP":
+                stopped.set()
+            if stalled:
+                late.set()
+            return ok
+
+        def close():
+            late.wait(0.5)
+            real_close()
+            closed.set()
+
+        arm.link.send, arm.link.close = send, close
+        q = np.array(bench.robot.cfg.arm.stow_joints) + np.array([0.6, 0.3, -0.3, 0.2, 0.2, 0.2])
+        th = threading.Thread(target=lambda: _move_quiet(arm, q), daemon=True)
+        th.start()
+        assert wait_for(lambda: "ARM_TARGET_B" in sent, 3.0)
+        hold.set()
+        assert held.wait(2.0)
+        arm.close()
+        th.join(3.0)
+        assert not th.is_alive()
+        last_stop = len(sent) - 1 - sent[::-1].index("STOP")
+        assert sent[last_stop + 1:] == [], sent[-6:]
+
+
+def _move_quiet(arm, q) -> None:
+    try:
+        arm.move_joints(q, timeout=10.0)
+    except Exception:  # noqa: BLE001 - LinkLost once closed is the expected outcome
+        pass
 
 
 def _ignite_quiet(bench: CanBench) -> None:
