@@ -264,17 +264,22 @@ class ZenohBody(Body):
             return self._link_error()
 
     def close(self) -> None:
-        if self._closed:
-            return
+        with self._cond:
+            if self._closed:
+                return
+            link_ok = self._link_error() is None
+            # first: from here every command query (lease_acquire, move, power …) of another thread
+            # is LinkLost; without it a move_to between the lease release below and the end of
+            # close() acquired a new lease and walked the body after close() (session 49)
+            self._closed = True
         self._stop_bg.set()
         if self._bg is not None and self._bg is not threading.current_thread():
             self._bg.join(timeout=2.0)
-        if self._lease and self._link_error() is None:
+        if self._lease and link_ok:
             try:
                 self.release_lease(timeout=0.2)  # the robot stops the body when the lease goes
             except Exception:  # noqa: BLE001 - closing must go on
                 pass
-        self._closed = True
         s, self._session = self._session, None
         if s is not None:
             try:

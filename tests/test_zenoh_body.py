@@ -319,6 +319,29 @@ def _move_in_thread(body: ZenohBody, goal: SE2, timeout: float) -> dict:
     return out
 
 
+def test_no_move_follows_close(port):
+    """A move_to of another thread while close() runs is refused (LinkLost) and never reaches the
+    robot side. Made certain here: the move starts right after close() has released the lease.
+    Before the fix it acquired a new lease and the body walked off after close()."""
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST, estop_timeout_s=5.0) as bench:
+        a = ZenohBody(ZenohBodyConfig.loopback(port, RID, client_id="alice"))
+        assert a.move_to(SE2(0.1, 0.0, 0.0), timeout=5.0).ok  # holds the lease
+        moves = bench.sim.moves
+        late: dict = {}
+        real_release = a.release_lease
+
+        def release(timeout: float = 0.5) -> None:
+            real_release(timeout)
+            late.update(_move_in_thread(a, SE2(3.0, 0.0, 0.0), 5.0))
+            late["thread"].join(2.0)
+
+        a.release_lease = release
+        a.close()
+        late["thread"].join(2.0)
+        assert bench.sim.moves == moves and not bench.sim.moving, "a move reached the robot side after close()"
+        assert isinstance(late.get("error"), LinkLost), late
+
+
 def test_robot_side_killed_is_link_lost_within_50ms():
     slow: list[float] = []
     for _ in range(3):  # 50 ms is a quiet machine's figure: only three late detections in a row fail
