@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-from . import axis_votes, compound_leaf, fan_apex, leaf_axes, plant_centre, stalks, tree_median
+from . import axis_votes, compound_leaf, fan_apex, leaf_axes, plant_centre, stalks, straw_shape, tree_median
 from .components import components
 from .roi import Roi, roi_mask
 from .vegetation import cap_clipped, pooled_index, resize_down, vegetation_index
@@ -89,9 +89,11 @@ def separate_parts(plant: np.ndarray) -> int:
 
 
 def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Roi | None, debug: dict | None = None,
-                   lab_index: bool = False, stage1: tuple | None = None, cap: bool = False):
+                   lab_index: bool = False, stage1: tuple | None = None, cap: bool = False, straw_colour: bool = False):
     """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
-    gets the name of the estimator that gave it under "method"."""
+    gets the name of the estimator that gave it under "method". `straw_colour`: the plant's colour
+    is not a green blade's (`candidates.green_blade`), so if it is one straight piece of even width
+    (`straw_shape.lone_bar`) it is straw: (None, 0, 0.0) as for no plant."""
     H, W = img.shape[:2]
     bx0, by0, bx1, by1 = box
     m = 0.12 * max(bx1 - bx0, by1 - by0) + 2
@@ -130,6 +132,10 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
     if int(plant.sum()) < 3 or plant.all():
         # (a mask without one soil pixel in a crop reaching past the plant's box: its threshold
         # has not told the plant from its soil, and its distance transform has no zero to measure from)
+        return None, 0, 0.0
+    if straw_colour and straw_shape.lone_bar(plant):  # one straight piece of even width, not green: straw
+        if debug is not None:
+            debug["method"] = "lone_bar"
         return None, 0, 0.0
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
     ys_, xs_ = np.nonzero(plant)

@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
+from .candidates import green_blade
 from .centre_cascade import centre_fullres
 from .components import components
 from .detection import Detection, Reason, ground_centre
@@ -356,7 +357,8 @@ def _locate(img: np.ndarray, win: SearchWindow, choice: Choice, debug: dict | No
     gx, gy, gw, gh = _grid_box(_box_parts(gmask))
     bx0, by0, bx1, by1 = mask_box(np.array([gx, gx + gw - 1]), np.array([gy, gy + gh - 1]), to_full)
     centre, tips, sharp = centre_fullres(img, (bx0, by0, bx1, by1), thr, soil_level, gains, roi, debug, lab_index=vivid,
-                                          stage1=(gmask, x0, y0, sx, sy), cap=win.overexposed)
+                                          stage1=(gmask, x0, y0, sx, sy), cap=win.overexposed,
+                                          straw_colour=not green_blade(scored[0][4]))
     if centre is None:
         return Detection(None, 0.0, "no_plant")
 

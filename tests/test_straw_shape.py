@@ -1,0 +1,89 @@
+"""Stage 2's lone straight blade (`straw_shape.lone_bar`): one straight piece of even width is
+straw or a cut blade, not a weed; plants of several parts (two cotyledons in a line with their
+waist, a fan of blades, a bent blade) are not taken for one (docs/perception.md §2, stage 2)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from capm_field import straw_shape
+from capm_field.camera import PinholeCamera
+from capm_field.config import CameraConfig, TaskConfig
+from capm_field.detector import detect_centre, ground_centre, roi_from_troi
+from sim_bench.perception_bench import make_case
+
+CAM = PinholeCamera.from_config(CameraConfig())
+
+
+def _lens(m: np.ndarray, a: tuple[float, float], b: tuple[float, float], width: float) -> None:
+    """A lens from a to b (pointed ends, widest in the middle), drawn into uint8 mask m."""
+    a_, b_ = np.array(a, float), np.array(b, float)
+    d = b_ - a_
+    n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+    t = np.linspace(0.0, 1.0, 41)
+    half = 0.5 * width * np.sin(np.pi * t) ** 0.5
+    side1 = a_ + t[:, None] * d + half[:, None] * n
+    side2 = a_ + t[:, None] * d - half[:, None] * n
+    cv2.fillPoly(m, [np.rint(np.vstack([side1, side2[::-1]])).astype(np.int32)], 1)
+
+
+def _mask(draw) -> np.ndarray:
+    m = np.zeros((110, 110), np.uint8)
+    draw(m)
+    return m.astype(bool)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 45.0, 100.0])
+def test_a_straight_straw_is_a_lone_bar(angle: float) -> None:
+    c, r = np.array([55.0, 55.0]), 42.0
+    u = np.array([math.cos(math.radians(angle)), math.sin(math.radians(angle))])
+    assert straw_shape.lone_bar(_mask(lambda m: _lens(m, c - r * u, c + r * u, 13)))
+
+
+def test_two_cotyledons_in_a_line_are_not() -> None:
+    """Aspect ≈ 5.5, but narrow in the middle where the petioles meet."""
+    def draw(m):
+        cv2.ellipse(m, (30, 55), (23, 8), 0, 0, 360, 1, -1)
+        cv2.ellipse(m, (80, 55), (23, 8), 0, 0, 360, 1, -1)
+        m[54:57, 50:61] = 1  # the petioles
+    m = _mask(draw)
+    (_, (w, h), _) = cv2.minAreaRect(np.c_[np.nonzero(m)[::-1]].astype(np.float32))
+    assert max(w, h) / min(w, h) >= straw_shape.BAR_ASPECT
+    assert not straw_shape.lone_bar(m)
+
+
+def test_a_fan_of_blades_a_bent_blade_and_a_short_leaf_are_not() -> None:
+    fan = _mask(lambda m: [_lens(m, (55, 100), (55 + 45 * math.sin(a), 100 - 90 * math.cos(a)), 8) for a in (-0.5, -0.2, 0.1, 0.4)])
+    assert not straw_shape.lone_bar(fan)
+
+    def bent(m):
+        cv2.ellipse(m, (55, 100), (50, 80), 0, 200, 340, 1, 9)
+    assert not straw_shape.lone_bar(_mask(bent))
+    assert not straw_shape.lone_bar(_mask(lambda m: _lens(m, (25, 55), (85, 55), 22)))  # aspect ≈ 2.7
+    assert not straw_shape.lone_bar(np.zeros((20, 20), bool))
+
+
+def _detect(seed: int, index: int, bare: bool):
+    case = make_case(seed, index, CAM, TaskConfig().delta, bare)
+    img = case.scene.render(case.T, CAM)
+    return case, detect_centre(img, roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius))
+
+
+def test_a_green_straw_on_bare_soil_is_no_plant(monkeypatch) -> None:
+    """Bench seed 10 case 40: bare soil whose only candidate in the TROI is a greenish straw (the
+    soil's white balance makes it pass the colour rules). Without the rule it is answered as a plant."""
+    _, det = _detect(10, 40, True)
+    assert det.pixel is None and det.reason == "no_plant"
+    monkeypatch.setattr(straw_shape, "BAR_ASPECT", math.inf)
+    assert _detect(10, 40, True)[1].pixel is not None
+
+
+def test_a_seedling_whose_cotyledons_lie_in_a_line_is_found() -> None:
+    """Bench seed 10 case 37: two cotyledons in a line (aspect 5.1 on the stage-2 grid, waist 0.21)."""
+    case, det = _detect(10, 37, False)
+    assert case.kind == "seedling" and det.reason is None
+    assert float(np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre)) < 0.005
