@@ -287,6 +287,20 @@ def test_clean_shutdown_no_threads_left_and_no_hang():
     assert not any(ch.startswith("capm-") and q for ch, q in virt.channels.items())
 
 
+def _close_after(link, late: threading.Event) -> threading.Event:
+    """Make `link.close()` wait (≤ 0.5 s) for `late`, the held-up send of a test, so that send goes
+    out before the link is shut; returns the event set once it is shut."""
+    real_close, closed = link.close, threading.Event()
+
+    def close():
+        late.wait(0.5)
+        real_close()
+        closed.set()
+
+    link.close = close
+    return closed
+
+
 def test_no_ignite_keepalive_follows_close_extinguish():
     """close() while ignite() runs in another thread: the EXTINGUISH that close() sends is the host's
     last word. An IGNITE keep-alive held up between the adapter's 'closed?' check and its send (a
@@ -299,8 +313,9 @@ def test_no_ignite_keepalive_follows_close_extinguish():
         ign = bench.igniter
         ign.arm(timeout=1.0)
         sent: list[int] = []
-        real_send, real_close = ign.link.send, ign.link.close
-        hold, held, extinguished, late, closed = (threading.Event() for _ in range(5))
+        real_send = ign.link.send
+        hold, held, extinguished, late = (threading.Event() for _ in range(4))
+        closed = _close_after(ign.link, late)
 
         def send(msg):
             cmd = None
@@ -320,12 +335,7 @@ def test_no_ignite_keepalive_follows_close_extinguish():
                 closed.wait(1.0)
             return ok
 
-        def close():
-            late.wait(0.5)
-            real_close()
-            closed.set()
-
-        ign.link.send, ign.link.close = send, close
+        ign.link.send = send
         th = threading.Thread(target=lambda: _ignite_quiet(bench), daemon=True)
         th.start()
         assert wait_for(lambda: IGN_IGNITE in sent, 2.0)
@@ -350,8 +360,9 @@ def test_no_arm_target_follows_close_stop():
     with CanBench() as bench:
         arm = bench.arm
         sent: list[str] = []
-        real_send, real_close = arm.link.send, arm.link.close
-        hold, held, stopped, late, closed = (threading.Event() for _ in range(5))
+        real_send = arm.link.send
+        hold, held, stopped, late = (threading.Event() for _ in range(4))
+        _close_after(arm.link, late)
 
         def send(msg):
             name = names.get(msg.arbitration_id)
@@ -371,12 +382,7 @@ def test_no_arm_target_follows_close_stop():
                 late.set()
             return ok
 
-        def close():
-            late.wait(0.5)
-            real_close()
-            closed.set()
-
-        arm.link.send, arm.link.close = send, close
+        arm.link.send = send
         q = np.array(bench.robot.cfg.arm.stow_joints) + np.array([0.6, 0.3, -0.3, 0.2, 0.2, 0.2])
         th = threading.Thread(target=lambda: _move_quiet(arm, q), daemon=True)
         th.start()
