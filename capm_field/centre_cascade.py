@@ -133,12 +133,12 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # (a mask without one soil pixel in a crop reaching past the plant's box: its threshold
         # has not told the plant from its soil, and its distance transform has no zero to measure from)
         return None, 0, 0.0
-    if straw_colour and straw_shape.lone_bar(plant):  # one straight piece of even width, not green: straw
+    ys_, xs_ = np.nonzero(plant)
+    if straw_colour and straw_shape.lone_bar(xs_, ys_):  # one straight piece of even width, not green: straw
         if debug is not None:
             debug["method"] = "lone_bar"
         return None, 0, 0.0
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
-    ys_, xs_ = np.nonzero(plant)
     size = math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
     roundness = float(dtp[plant].mean()) / size  # mean half-width of the parts / plant size
     uv, method = None, None

@@ -29,9 +29,8 @@ BAR_WAIST = 0.6  # ... and the least width in its middle third, × its greatest 
 BAR_BINS = 12  # width profile: pixel counts in this many slices across the long axis
 
 
-def lone_bar(plant: np.ndarray) -> bool:
-    """True when the boolean mask `plant` is one straight piece of even width (see the module)."""
-    ys, xs = np.nonzero(plant)
+def lone_bar(xs: np.ndarray, ys: np.ndarray) -> bool:
+    """True when the plant's pixels (xs, ys) form one straight piece of even width (see the module)."""
     if len(xs) < 3 * BAR_BINS:
         return False
     pts = np.c_[xs, ys].astype(np.float32)
