@@ -25,7 +25,9 @@ FAN_GAP = 2.6  # ... and its far geodesic tips one of at least this (≈ 149°; 
 # plant (not only one-peak blades) took a clover with stalks off `stalk_centre` (0.6 → 38.5 mm, 2 peaks) and
 # rosettes of roundness 0.035 off the tree median (2.8 → 33.4, 10.5 → 64.9 mm)
 FAN_STRAIGHT = 1.15  # Σ geodesic / Σ straight-line distance from the apex to the far tips
-FAN_MIN_TIPS = 2
+FAN_MIN_TIPS = 2  # far tips (beyond 0.15 of the size from the apex) ...
+WIDE_FAN_TIPS = 3  # ... for round plants, tried late in the cascade (`centre_cascade.WIDE_FAN_ROUND`): two far
+# tips are two leaves, not a fan (session 24: with two, only seedlings moved, all worse)
 FAN_MAX_PEAKS = 2  # more `vote_peaks`: leaves converge at several points (clover trefoil hubs) ...
 FAN_CLEAR_GAP = 3.6  # ... unless the plant, seen from the apex, spans ≤ 2π − this (≈ 154°) ...
 FAN_DENSE_PEAKS = 4  # ... and with this many peaks or more, ≤ 2π − FAN_DENSE_GAP (≈ 74°)
@@ -51,7 +53,8 @@ def _longest_empty_sector(angles: np.ndarray, bins: int = 72) -> float:
     return float(runs.max() if len(runs) else 0) * 2 * np.pi / bins
 
 
-def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, roundness: float = 1.0) -> np.ndarray | None:
+def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, roundness: float = 1.0,
+             min_tips: int = FAN_MIN_TIPS) -> np.ndarray | None:
     """Apex of a fan-shaped plant (a grass tuft leaning one way), or None if it is not one.
 
     The blades of a fan run straight from their common base to tips that all lie on one side,
@@ -63,6 +66,7 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, ro
     on the end of one long blade reaches the other tips round a bend), and the votes have ≤ FAN_MAX_PEAKS peaks
     (`n_peaks`, from `vote_peaks`) or the whole plant lies in a sector the narrower the more
     peaks there are (leaves converging at several points: trefoil hubs, rosette leaves).
+    `min_tips`: how many far tips (beyond 0.15 of the size) it needs.
     """
     near = cv2.dilate(plant.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     B = np.where(near, votes, 0)
@@ -97,7 +101,7 @@ def fan_apex(plant: np.ndarray, votes: np.ndarray, size: float, n_peaks: int, ro
     d = np.argwhere(node >= 0)[tips][:, ::-1] - src
     r = np.hypot(d[:, 0], d[:, 1])
     far = r > 0.15 * size
-    if far.sum() < FAN_MIN_TIPS:
+    if far.sum() < min_tips:
         return None
     ang = np.sort(np.arctan2(d[far, 1], d[far, 0]))
     gap = float(np.max(np.diff(np.r_[ang, ang[0] + 2 * np.pi])))

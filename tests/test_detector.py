@@ -236,6 +236,21 @@ def test_wide_one_peak_grass_fan_is_centred_at_its_base(seed: int, index: int, m
     assert err > 0.012 and method != "fan_apex", (err, method)
 
 
+@pytest.mark.parametrize("seed, index", [(2, 250), (5, 90)])
+def test_blurred_dense_grass_fan_is_centred_at_its_base(seed: int, index: int, monkeypatch) -> None:
+    """Bench grass tufts whose blades blur into one blob towards the base: mean half-width 0.077 and
+    0.063 of the size, round for step 1's fan test. `wide_fan` (the fan test again before the medians,
+    ≥ 3 far tips) answers 7.1 and 5.6 mm off; without it the tree median lands mid-fan, 34.9 and 30.6 mm."""
+    import capm_field.centre_cascade as cc
+
+    locate = _bench_weed(seed, index, "grass")
+    err, method = locate()
+    assert err < 0.010 and method == "wide_fan", (err, method)
+    monkeypatch.setattr(cc, "WIDE_FAN_ROUND", 0.0)
+    err, method = locate()
+    assert err > 0.030 and method != "wide_fan", (err, method)
+
+
 @pytest.mark.parametrize("seed, index", [(3, 139), (6, 223)])
 def test_clover_petioles_meeting_in_a_v_are_split(seed: int, index: int, monkeypatch) -> None:
     """Bench clovers whose two visible petioles meet in a V: `petiole_centre` saw one bent ridge,
