@@ -37,6 +37,12 @@ TIP_SPREAD = 0.5  # × plant size: ρ of the tree-median tips' weight kernel exp
 TM_ITER = 2  # tips from the provisional centre, then again from the first estimate
 
 
+def vote_scale(roundness: float) -> float:
+    """Leaf-axis vote scale (× the plant's size) for leaves of mean half-width `roundness` × size:
+    AXIS_K × that half-width, within 0.015–AXIS_MAX."""
+    return float(np.clip(AXIS_K * roundness, 0.015, AXIS_MAX))
+
+
 def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | None = None,
                 votes: np.ndarray | None = None) -> tuple[np.ndarray | None, int, float]:
     """Point minimising Σ geodesic distance to the leaf tips of a plant mask, in mask pixels.
