@@ -13,6 +13,7 @@ import math
 import os
 import re
 import ssl
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -110,6 +111,14 @@ def one_line(detail: str, limit: int = TEXT_MAX) -> str:
     return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
+def _finite_real(v: Any) -> bool:
+    """A real: a finite CBOR float, or an integer that a float can hold (a CBOR bignum such as
+    2**1100 is not one: `math.isfinite` would raise OverflowError on it)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    return abs(v) <= sys.float_info.max if isinstance(v, int) else math.isfinite(v)
+
+
 def _check(value: Any, typ: str, name: str) -> None:
     if typ.endswith("?"):
         if value is None:
@@ -119,7 +128,7 @@ def _check(value: Any, typ: str, name: str) -> None:
         "str": lambda v: isinstance(v, str) and len(v) <= TEXT_MAX,
         "id": lambda v: isinstance(v, str) and bool(_ID_RE.fullmatch(v)),
         "int": lambda v: isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**64,
-        "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
+        "float": _finite_real,
         "coord": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= GOAL_EXTENT_M,
         "bool": lambda v: isinstance(v, bool),
         "status": lambda v: v in MOVE_STATUSES,
@@ -160,9 +169,12 @@ def decode(kind: str, raw: bytes | None) -> dict[str, Any]:
         raise ProtocolError("malformed", f"payload of {len(raw)} bytes exceeds {MAX_PAYLOAD}")
     try:
         buf = io.BytesIO(raw)
-        msg = cbor2.CBORDecoder(buf).decode()
+        # a map with a key twice is not valid CBOR (RFC 8949 §5.6): one decoder would keep the
+        # first, another the last (an engage read as a release), so it is malformed here
+        msg = cbor2.CBORDecoder(buf, allow_duplicate_keys=False).decode()
     except Exception as e:  # noqa: BLE001 - any decoder failure is a malformed payload
-        raise ProtocolError("malformed", f"not CBOR ({type(e).__name__})") from None
+        what = "a map with a key twice" if "duplicate map key" in str(e).lower() else f"not CBOR ({type(e).__name__})"
+        raise ProtocolError("malformed", what) from None
     if buf.tell() != len(raw):  # one map per message: bytes after it are a framing error (two messages, junk)
         raise ProtocolError("malformed", f"{len(raw) - buf.tell()} bytes after the CBOR map")
     if not isinstance(msg, dict):

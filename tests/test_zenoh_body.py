@@ -56,6 +56,25 @@ def ask(session: zenoh.Session, key: str, payload: bytes | None) -> tuple[bool, 
     raise AssertionError(f"no reply on {key}")
 
 
+def _with_key_twice(msg: dict, key: str, value) -> bytes:
+    """CBOR of `msg` (< 23 entries) with `key` given once more at the end: not valid CBOR."""
+    raw = cbor2.dumps(msg)
+    assert 0xa0 <= raw[0] < 0xb7
+    return bytes([raw[0] + 1]) + raw[1:] + cbor2.dumps(key) + cbor2.dumps(value)
+
+
+def test_duplicate_keys_are_malformed_whichever_comes_first():
+    from drivers.body_protocol import ProtocolError, decode as decode_msg
+
+    base = {"v": 1, "client": "c1", "seq": 1}
+    for first, then in ((False, True), (True, False)):
+        payload = _with_key_twice({**base, "engage": first}, "engage", then)
+        with pytest.raises(ProtocolError) as e:
+            decode_msg("checkin", payload)
+        assert e.value.tag == "malformed" and "twice" in e.value.detail
+    decode_msg("checkin", cbor2.dumps({**base, "engage": True}))  # the same map without the second key is fine
+
+
 def test_malformed_payloads_are_refused_and_counted(port, raw):
     k = Keys(RID)
     with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], body=FAST) as bench:
@@ -72,12 +91,15 @@ def test_malformed_payloads_are_refused_and_counted(port, raw):
             cbor2.dumps({"v": 99, **good_goal}): "bad_version",
             cbor2.dumps({**good_goal}): "malformed",  # no version
             b"\xa1" + b"\x00" * 5000: "malformed",  # oversize
+            # a real no float can hold (CBOR bignum): malformed, not an internal error
+            cbor2.dumps({"v": 1, **good_goal, "goal": {"x": 0.0, "y": 0.0, "yaw": 2**1100}}): "malformed",
+            _with_key_twice({"v": 1, **good_goal}, "timeout_ns", 1): "malformed",  # RFC 8949 §5.6
         }
         for payload, tag in cases.items():
             ok, rep = ask(s, k.cmd_move, payload)
             assert not ok and rep["error"] == tag, (payload[:20], rep)
         stats = bench.server.stats
-        assert stats["malformed"] == 9 and stats["bad_version"] == 1
+        assert stats["malformed"] == 11 and stats["bad_version"] == 1
         assert bench.sim.moves == 0 and not bench.sim.moving
 
 
