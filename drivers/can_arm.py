@@ -79,6 +79,7 @@ class CanArm(Arm):
         self._state_ids = {db.get_message_by_name(n).frame_id for n in ("ARM_STATE_A", "ARM_STATE_B")}
         self._status: dict = {"Mode": 0, "Enabled": 0, "Moving": 0, "Stowed": 0, "FaultCode": 0, "RxRejected": 0}
         self._status_seen = False
+        self._status_stamp = 0  # monotonic ns of the last ARM_STATUS
         self._status_n = 0  # ARM_STATUS frames received (start-up counter sync waits on it)
         self._closed = False
         # sending and checking `_closed` are one step under `_tx` (as in CanIgniter): close() sets
@@ -131,6 +132,7 @@ class CanArm(Arm):
             elif name == "ARM_STATUS":
                 self._status = {k: int(v) for k, v in sig.items()}
                 self._status_seen = True
+                self._status_stamp = time.monotonic_ns()
                 self._status_n += 1
             self._cv.notify_all()
 
@@ -333,7 +335,17 @@ class CanArm(Arm):
     def state(self) -> ArmState:
         with self._cv:
             q, stamp, moving = self._q.copy(), self._q_stamp, bool(self._status["Moving"])
-        fault = "link_lost" if not self.link.ok else self.fault
+            status_stamp = self._status_stamp
+        # joints or status older than state_timeout: the arm may have sagged or latched a fault
+        # this host has not heard of, so the state says so (the ignition interlock denies on any
+        # fault) while the gateway's heartbeat alone still says the link is up
+        oldest = min(stamp, status_stamp)
+        if not self.link.ok:
+            fault = "link_lost"
+        elif time.monotonic_ns() - oldest > self.cfg.state_timeout * 1e9:
+            fault = "state_stale"
+        else:
+            fault = self.fault
         return arm_state(self.robot, q, moving, stamp, fault)
 
     @property

@@ -502,3 +502,44 @@ def test_blind_host_stops_arm_and_flame():
         r = bench.arm.move_joints(np.array([0.6, 1.2, -1.2, 0.3, 0.4, 0.2]), timeout=5.0)
         assert not r.ok and r.reason == "state_stale"
         rs.faults.drop_tx.clear()
+
+
+def test_interlock_denies_a_hold_once_the_arm_state_goes_stale():
+    """Gateway heartbeat alive but its joint state and status stop during a flame hold (the arm may
+    sag or latch a fault this host never hears of): `CanArm.state()` says `state_stale`, the
+    ignition interlock denies and the flame goes out; the fault clears when state frames resume."""
+    from capm_field.config import TaskConfig
+    from drivers.interfaces import DriverSet
+    from mission.interlock import IgnitionInterlock
+    from sim_bench.sim_body import SimBodyDriver
+
+    robot = RobotModel()
+    with CanBench(robot=robot) as bench:
+        rs, body = bench.robot_side, SimBodyDriver()
+        assert bench.arm.move_joints(np.array([0.0, 1.6, -0.5, 0.0, 0.6, 0.0]), 10.0).ok
+        T = robot.T_field_base(body.state().pose) @ bench.arm.state().nozzle_pose
+        X, ax = T[:3, 3], T[:3, 0]
+        aim = X + (-X[2] / ax[2]) * ax  # where the nozzle points on the ground
+        d2 = float(np.sum((aim - X) ** 2))
+        interlock = IgnitionInterlock(DriverSet(body=body, arm=bench.arm, igniter=bench.igniter, camera=None), robot,
+                                      TaskConfig(eps_min=0.9 * d2, eps_max=1.1 * d2), (float(aim[0]), float(aim[1])))
+        interlock.anchor()
+        assert interlock.check().ok, interlock.check().reasons
+        bench.igniter.arm(1.0)
+        blind: list[float] = []
+
+        def go_blind() -> None:
+            with rs.lock:
+                rs.faults.drop_tx.update({n: 10**9 for n in ("ARM_STATE_A", "ARM_STATE_B", "ARM_STATUS")})
+                blind.append(time.monotonic())
+
+        threading.Timer(0.3, go_blind).start()
+        r = bench.igniter.ignite(3.0, interlock.permit, 10.0)
+        out = time.monotonic()
+        assert not r.ok and r.reason == "permit_dropped", r
+        assert blind and out - blind[0] < 0.25 + 0.5, out - blind[0]  # state_timeout, + scheduling slack
+        assert bench.arm.state().fault == "state_stale" and "arm_fault:state_stale" in interlock.check().reasons
+        assert wait_for(lambda: not rs.board.flame_on and not rs.board.valve_open, 0.5)
+        with rs.lock:
+            rs.faults.drop_tx.clear()
+        assert wait_for(lambda: bench.arm.state().fault is None, 1.0)  # not latched: fresh state clears it
