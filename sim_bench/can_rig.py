@@ -11,7 +11,8 @@ import time
 import can
 
 from capm_field.robot_model import RobotModel
-from drivers.can.codec import IGN_ARM, IGN_IGNITE, NODE_HOST_ARM, NODE_HOST_IGN, Encoder, Receiver
+from drivers.can.codec import (ARM_NOP, IGN_ARM, IGN_IGNITE, IGN_NOP, NODE_HOST_ARM, NODE_HOST_IGN, RESYNC_HOLD_S, Encoder,
+                               Receiver)
 from drivers.can.config import CanArmConfig, CanBusConfig, CanIgniterConfig, HeartbeatConfig
 from drivers.can.link import open_bus
 from drivers.can_arm import CanArm
@@ -110,6 +111,14 @@ class RawHost(can.Listener):
     def send(self, msg: can.Message) -> float:
         self.bus.send(msg)
         return time.monotonic()
+
+    def start_up(self) -> None:
+        """The host start-up's essentials (docs/protocols/can.md): one NOP per command id takes up
+        the nodes' counters (first frame or resync), then wait out their resync hold (rule 7), so
+        the next real command is acted on."""
+        self.ign(IGN_NOP)
+        self.arm_cmd(ARM_NOP)
+        time.sleep(RESYNC_HOLD_S + 0.01)
 
     def ign(self, cmd: int, counter: int | None = None) -> float:
         """Send one IGN_CMD; returns the monotonic time right after sending."""

@@ -48,10 +48,12 @@ from drivers.can.codec import (
     NODE_ARM_GW,
     NODE_IGN_BOARD,
     PAIR_WINDOW_S,
+    RESYNC_HOLD_S,
     Encoder,
     Receiver,
     SetPairer,
     database,
+    node_acts_in_hold,
 )
 from drivers.can.config import CanBusConfig
 from drivers.can.link import open_bus
@@ -109,8 +111,10 @@ class CanRobotSide:
         self.tick, self.hb_period, self.host_timeout = tick, heartbeat_period, host_timeout
         self.periods = {"state": state_period, "arm_status": arm_status_period, "ign_status": ign_status_period}
         self.enc = Encoder()
-        self.arm_rx = Receiver({"ARM_CMD", "ARM_TARGET_A", "ARM_TARGET_B", "HB_HOST_ARM"}, max_counter_jump)
-        self.ign_rx = Receiver({"IGN_CMD", "HB_HOST_IGN"}, max_counter_jump)
+        # the nodes' receivers hold commands just after a resync (can.md rule 7: a stale burst)
+        self.arm_rx = Receiver({"ARM_CMD", "ARM_TARGET_A", "ARM_TARGET_B", "HB_HOST_ARM"}, max_counter_jump,
+                               RESYNC_HOLD_S, node_acts_in_hold)
+        self.ign_rx = Receiver({"IGN_CMD", "HB_HOST_IGN"}, max_counter_jump, RESYNC_HOLD_S, node_acts_in_hold)
         db = database()
         self._ign_cmd_id = db.get_message_by_name("IGN_CMD").frame_id
         self._target_ids = {db.get_message_by_name(n).frame_id for n in ("ARM_TARGET_A", "ARM_TARGET_B")}

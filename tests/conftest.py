@@ -62,6 +62,7 @@ def raw():
         while not (rs.board.host_present and rs._host_arm_hb is not None) and time.monotonic() < end:
             time.sleep(0.005)
         assert rs.board.host_present and rs._host_arm_hb is not None  # host heartbeats seen
+        host.start_up()  # counters taken up, resync hold over: the test's first command is acted on
         yield bench, host
     finally:
         host.close()

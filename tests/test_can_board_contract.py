@@ -24,6 +24,7 @@ from drivers.can.codec import (
     ARM_NOP,
     ARM_RESET,
     IGN_ARM,
+    IGN_DISARM,
     IGN_EVENT_CODES,
     IGN_EXTINGUISH,
     IGN_IGNITE,
@@ -178,6 +179,31 @@ def test_keepalive_gap_disarms_and_ignite_alone_does_not_relight(raw):
     with bench.robot_side.lock:
         assert not b.valve_open and not b.armed
     host.light()  # an explicit ARM makes it usable again
+
+
+def test_a_stale_burst_of_the_hosts_own_frames_does_not_rearm_a_tripped_board(raw):
+    """After a keep-alive trip, the host's earlier DISARM, ARM, IGNITE ×4 arrive again with their
+    old counters, back to back (a stuck mailbox flushed): the first is rejected by the counter
+    and the rest follow it in step, but within the resync hold (can.md rule 7) a node acts on no
+    ARM or IGNITE: the board stays disarmed, the valve shut, and all six are counted."""
+    bench, host = raw
+    host.light()
+    time.sleep(0.15)  # no keep-alive: the board trips and disarms
+    assert host.wait_ign(lambda s: s["Armed"] == 0 and s["FlameOn"] == 0, 1.0)
+    c_next = host.enc.next_counter("IGN_CMD")  # the host's counter has moved on
+    rej0 = host.ign_status["RxRejected"]
+    t0 = time.monotonic()
+    c0 = (c_next - 8) & 0x0F  # behind the board's last accepted counter: stale
+    for k, cmd in enumerate((IGN_DISARM, IGN_ARM, IGN_IGNITE, IGN_IGNITE, IGN_IGNITE, IGN_IGNITE)):
+        host.ign(cmd, counter=(c0 + k) & 0x0F)
+    assert host.wait_ign(lambda s: s["RxRejected"] == (rej0 + 6) & 0xFF, 1.0), host.ign_status
+    time.sleep(0.1)
+    seen = host.statuses_since(t0)
+    assert seen and not any(s["Armed"] or s["FlameOn"] or s["Igniting"] for s in seen)
+    rs = bench.robot_side
+    with rs.lock:
+        assert not rs.board.valve_open and not rs.board.armed
+    assert rs.ign_rx.stats.rejected["resync_hold"] == 5
 
 
 def test_a_descheduled_board_takes_frames_at_their_bus_time(raw):

@@ -20,7 +20,9 @@ sender on the bus (a recorded pair of consecutive frames replays through the res
 from __future__ import annotations
 
 import threading
+import time
 from collections import Counter as _Tally
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -172,21 +174,37 @@ class _CounterCheck:
         self.max_jump = max_jump
         self.last: int | None = None
         self.candidate: int | None = None
+        self.synced_at: float | None = None  # when the counter was last taken up afresh (first frame, resync)
 
-    def check(self, c: int) -> tuple[str | None, int]:
-        """Returns (reject reason or None, number of frames lost)."""
+    def check(self, c: int, t: float = 0.0) -> tuple[str | None, int]:
+        """Returns (reject reason or None, number of frames lost); `t`: the frame's time, kept as
+        `synced_at` when this frame takes the counter up afresh."""
         if self.last is None:
-            self.last = c
+            self.last, self.synced_at = c, t
             return None, 0
         d = (c - self.last) & 0x0F
         if 1 <= d <= self.max_jump:
             self.last, self.candidate = c, None
             return None, d - 1
         if self.candidate is not None and ((c - self.candidate) & 0x0F) == 1:
-            self.last, self.candidate = c, None
+            self.last, self.candidate, self.synced_at = c, None, t
             return None, 0
         self.candidate = c
         return ("counter_repeated" if d == 0 else "counter_sequence"), 0
+
+
+RESYNC_HOLD_S = 0.030  # a node acts on no command but NOP and the safe ones this long after a resync (rule 7)
+
+
+def node_acts_in_hold(name: str, sig: dict) -> bool:
+    """What the gateway and the board act on within RESYNC_HOLD_S of a resync: NOP, the commands
+    that only make the node safer (IGN_CMD DISARM / EXTINGUISH, ARM_CMD STOP), and target sets
+    (applied only in HOLDING / TRACKING, which needs an ENABLE, and checked for jumps there)."""
+    if name == "IGN_CMD":
+        return int(sig["Command"]) in (IGN_NOP, IGN_DISARM, IGN_EXTINGUISH)
+    if name == "ARM_CMD":
+        return int(sig["Command"]) in (ARM_NOP, ARM_STOP)
+    return name not in ("IGN_CMD", "ARM_CMD")
 
 
 class Receiver:
@@ -197,8 +215,17 @@ class Receiver:
     only counted as `ignored`). Call from one thread (the Notifier's or the node's loop).
     """
 
-    def __init__(self, consume: set[str], max_counter_jump: int = 3) -> None:
+    def __init__(self, consume: set[str], max_counter_jump: int = 3, resync_hold_s: float = 0.0,
+                 acts_in_hold: Callable[[str, dict], bool] | None = None) -> None:
+        """`resync_hold_s` > 0 (the nodes, gateway and board: docs/protocols/can.md rule 7): for
+        this long after a frame took its id's counter up afresh (first frame, re-synchronisation),
+        frames of that id are checked and advance the counter but are rejected (`resync_hold`)
+        unless `acts_in_hold(name, signals)` (NOP and the commands that only make the node safer).
+        A stale queue flushed after a stall arrives as one burst: its first frame is rejected by
+        the counter, and without the hold the rest would follow it in step and be acted on."""
         self.db = database()
+        self.resync_hold_s = resync_hold_s
+        self._acts_in_hold = acts_in_hold or (lambda name, sig: False)
         self._consume = {self.db.get_message_by_name(n).frame_id for n in consume}
         self._known = {m.frame_id for m in self.db.messages}
         self._checks = {fid: _CounterCheck(max_counter_jump) for fid in self._consume}
@@ -251,11 +278,16 @@ class Receiver:
             self.reject("range")
             return None
         if protected:
-            reason, lost = self._checks[fid].check(int(sig["Counter"]))
+            check = self._checks[fid]
+            t = msg.timestamp or time.time()  # bus receive time (python-can: time.time() based)
+            reason, lost = check.check(int(sig["Counter"]), t)
             if reason:
                 self.reject(reason)
                 return None
             self.stats.lost += lost
+            if self.resync_hold_s > 0 and t - check.synced_at < self.resync_hold_s and not self._acts_in_hold(m.name, sig):
+                self.reject("resync_hold")
+                return None
         self.stats.accepted += 1
         return m.name, sig
 

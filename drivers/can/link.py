@@ -20,7 +20,7 @@ import can
 
 from drivers.interfaces import DriverTimeout, LinkLost
 
-from .codec import HEARTBEAT_BASE, NMT_OPERATIONAL, Encoder, Receiver
+from .codec import HEARTBEAT_BASE, NMT_OPERATIONAL, RESYNC_HOLD_S, Encoder, Receiver
 from .config import CanBusConfig, HeartbeatConfig
 
 
@@ -231,9 +231,12 @@ def sync_counter(cv: threading.Condition, link: "CanLink", command: str, status:
             if not link.send(link.encoder.encode(command, {"Command": 0})):
                 link.check()
                 raise LinkLost(f"cannot send {command}")
+        sent_at = time.monotonic()
         with cv:
             n_sent = status()[0]
         wait_for(cv, link, lambda: status()[0] >= n_sent + 2, deadline, f"status after the {command} counter sync")
+        # the node acts on no real command within RESYNC_HOLD_S of the resync these NOPs made (rule 7)
+        time.sleep(max(0.0, sent_at + RESYNC_HOLD_S - time.monotonic()))
         with cv:
             rose = (status()[1] - rej0) & 0xFF
         if rose <= 1:
