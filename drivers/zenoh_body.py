@@ -55,6 +55,7 @@ _ACK_FIELDS = {"move": ("cmd_id",), "lease_acquire": ("lease", "ttl_ns"), "check
 _MAX_NS = 2**64 - 1  # a CBOR uint
 SEQ_RESTART_GAP = 1000  # State.seq this far below the last one taken: the robot side restarted (10 s of states)
 SEQ_RESTART_QUIET_NS = 500_000_000  # or no State taken for this long (a restart takes longer)
+REFRESH_RETRY_S = 0.02  # lease refreshes at most this often (a failing refresh must not spin; a TTL under 80 ms is refreshed this often)
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,7 @@ class ZenohBody(Body):
         self._listeners: list[Callable[[BodyState], None]] = []
         self._last_seq: int | None = None  # State.seq of the last state taken: older ones are dropped
         self._stop_bg = threading.Event()
+        self._bg_kick = threading.Event()  # set on close and on a new lease: the background loop re-plans its wait
         self._bg: threading.Thread | None = None
         zcfg = cfg.link.zenoh_config()
         sec = link_security(zcfg)
@@ -273,6 +275,7 @@ class ZenohBody(Body):
             # close() acquired a new lease and walked the body after close() (session 49)
             self._closed = True
         self._stop_bg.set()
+        self._bg_kick.set()
         if self._bg is not None and self._bg is not threading.current_thread():
             self._bg.join(timeout=2.0)
         if self._lease and link_ok:
@@ -352,6 +355,7 @@ class ZenohBody(Body):
         ack = self._query(self.keys.lease_acquire, "lease_acquire", msg, deadline)
         self._lease, self._lease_ttl_ns = ack["lease"], ack["ttl_ns"]
         self._lease_refreshed_ns = time.monotonic_ns()
+        self._bg_kick.set()  # its next refresh may be due before the background loop's next check-in
 
     def _checkin_msg(self, engage: bool | None = None) -> dict:
         """A CheckIn, with the lease token while this client holds the lease (the robot side counts
@@ -386,18 +390,36 @@ class ZenohBody(Body):
                 self._cond.wait(min(remaining, 0.05))
 
     def _background(self) -> None:
+        """Check-ins every `_checkin_period_s`, and lease refreshes every ttl/4 while holding the
+        lease (body-zenoh.md), each on its own deadline: a lease TTL shorter than the check-in
+        period (both are the robot side's settings) must not expire between check-ins."""
         next_checkin = time.monotonic() + self._checkin_period_s
-        while not self._stop_bg.wait(max(0.0, next_checkin - time.monotonic())):
+        refresh_tried = 0.0  # a failed refresh is retried no sooner than REFRESH_RETRY_S later
+        while True:
+            wake = next_checkin
+            if self._lease:
+                due = self._lease_refreshed_ns * 1e-9 + max(self._lease_ttl_ns * 1e-9 / 4, REFRESH_RETRY_S)
+                wake = min(wake, max(due, refresh_tried + REFRESH_RETRY_S))
+            self._bg_kick.wait(max(0.0, wake - time.monotonic()))
+            self._bg_kick.clear()
+            if self._stop_bg.is_set():
+                return
             with self._cond:
                 lost = self._link_error()
             if lost:
                 return  # latched: stop checking in so a robot side that comes back stops itself
             try:
-                self._checkin(time.monotonic() + self._checkin_period_s)
-                self.stats["checkins"] += 1
-                if self._lease and time.monotonic_ns() - self._lease_refreshed_ns > self._lease_ttl_ns / 4:
+                if time.monotonic() >= next_checkin:
+                    next_checkin += self._checkin_period_s
+                    if next_checkin < time.monotonic():
+                        next_checkin = time.monotonic()
+                    self._checkin(time.monotonic() + self._checkin_period_s)
+                    self.stats["checkins"] += 1
+                if self._lease and time.monotonic_ns() - self._lease_refreshed_ns >= self._lease_ttl_ns / 4 \
+                        and time.monotonic() >= refresh_tried + REFRESH_RETRY_S:
+                    refresh_tried = time.monotonic()
                     try:
-                        self._refresh_lease(time.monotonic() + self._checkin_period_s)
+                        self._refresh_lease(time.monotonic() + min(self._checkin_period_s, self._lease_ttl_ns * 1e-9 / 4))
                     except LeaseRefused:
                         self._lease = None
             except DriverError:
@@ -405,9 +427,6 @@ class ZenohBody(Body):
             except Exception:  # noqa: BLE001 - the keep-alive thread must outlive any one bad round
                 self.stats["checkin_failed"] += 1
                 log.exception("E-stop check-in failed")
-            next_checkin += self._checkin_period_s
-            if next_checkin < time.monotonic():
-                next_checkin = time.monotonic()
 
     def _link_error(self) -> str | None:
         """Why the link is unusable, or None. Call with `_cond` held. Latches the first reason."""

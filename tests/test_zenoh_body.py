@@ -152,6 +152,21 @@ def test_second_commander_is_refused_until_the_first_releases(port):
             b.close()
 
 
+def test_a_lease_shorter_than_the_checkin_period_is_refreshed_on_its_own_clock(port):
+    """Robot side: lease TTL 0.5 s, E-stop timeout 4 s (check-ins every 1 s): the client refreshes
+    the lease every ttl/4 (body-zenoh.md), not only when it checks in, so a 3 s walk completes."""
+    with serve_sim_body(RID, [f"tcp/127.0.0.1:{port}"], lease_ttl_s=0.5, estop_timeout_s=4.0,
+                        body=BodyConfig(max_speed=1.0, max_accel=4.0, max_yaw_rate=3.0)) as bench:
+        body = ZenohBody(ZenohBodyConfig.loopback(port, RID))
+        try:
+            assert body._checkin_period_s > 0.5  # the case under test
+            r = body.move_to(SE2(3.0, 0.0, 0.0), 10.0)
+            assert r.ok, r
+            assert bench.server.stats.get("lease_expired", 0) == 0
+        finally:
+            body.close()
+
+
 def test_lease_expires_without_refresh_and_stops_the_body(port, raw):
     k = Keys(RID)
     # a 0.5 s lease: the Move (after two more queries) must come within it also on a loaded machine
