@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cli_args
-from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
+from .config import MIN_TROI_RADIUS, ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
 from .errors import UserError, check_output, write_output
 from .geometry import SE2
 from .keystates import TROI
@@ -241,8 +241,8 @@ def main(argv: list[str]) -> int:
         r_range = tuple(float(x) for x in a.radius_range.split(","))
     except ValueError as e:
         raise UserError(f"--radius-range: expected MIN,MAX in metres, got {a.radius_range!r}") from e
-    if len(r_range) != 2 or not 0 < r_range[0] <= r_range[1]:
-        raise UserError(f"--radius-range: need 0 < MIN ≤ MAX, got {a.radius_range!r}")
+    if len(r_range) != 2 or not MIN_TROI_RADIUS <= r_range[0] <= r_range[1] or not math.isfinite(r_range[1]):
+        raise UserError(f"--radius-range: need {MIN_TROI_RADIUS} ≤ MIN ≤ MAX (finite, metres), got {a.radius_range!r}")
     spec = BenchSpec(trials=a.trials, seed=a.seed, planners=planners, lengths=lengths, span=a.span, r_range=r_range)  # type: ignore[arg-type]
     task_kw = dict(delta=a.delta, eps_min=a.eps_min, eps_max=a.eps_max)
     opts = PlannerOptions(tiebreak=a.tiebreak)

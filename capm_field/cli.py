@@ -10,9 +10,10 @@ Errors a user can cause (UserError, config validation) print one line and exit 2
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
-from .errors import UserError
+from .errors import UserError, shown
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("mission.run_cli", "run a mission file (bench or hardware) and write run.mcap + summary.json"),
@@ -58,6 +59,13 @@ def main(argv: list[str] | None = None) -> int:
         return int(entry(rest) or 0)
     except UserError as e:
         print(f"capm-field {name}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        if e.filename is None:
+            raise  # not a path the user gave: a fault to see whole
+        # a path the checks before could not judge (a name over the file system's limit, a
+        # device, /proc): one line naming it, as for any bad input
+        print(f"capm-field {name}: error: {shown(os.fsdecode(e.filename), 120)}: {e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"capm-field {name}: interrupted", file=sys.stderr)

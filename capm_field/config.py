@@ -176,7 +176,7 @@ class TaskConfig(_Frozen):
     sigma_reading: Literal["variance", "std"] = Field(
         "variance", description="Σ_w = scale·r_w·I read as a covariance (σ = √(scale·r_w)) or as σ = scale·r_w"
     )
-    sigma_scale: float = Field(1.0, gt=0.0, le=10.0, description="scale on r_w in Σ_w")
+    sigma_scale: float = Field(1.0, ge=0.01, le=10.0, description="scale on r_w in Σ_w (≥ 0.01: a σ of nothing overflows p(x_b,k1)'s χ² tail)")
 
     @model_validator(mode="after")
     def _eps_order(self) -> "TaskConfig":
@@ -188,6 +188,9 @@ class TaskConfig(_Frozen):
         """Standard deviation σ of the isotropic MPOI prior N(X_w, σ²I) for a TROI of radius r_w."""
         s = self.sigma_scale * r_w
         return float(s**0.5) if self.sigma_reading == "variance" else float(s)
+
+
+MIN_TROI_RADIUS = 0.001  # m: r_w below a millimetre is no weed's region (at 1e-20 p(x_b,k1) was NaN everywhere)
 
 
 class ReachabilityConfig(_Frozen):

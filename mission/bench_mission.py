@@ -34,9 +34,20 @@ def _number(v: Any, where: str, lo: float = 0.0, hi: float = math.inf) -> float:
     """A finite JSON number in [lo, hi] (not a bool, not a string), else UserError naming `where`."""
     if v is None:
         raise UserError(f"{where} is missing")
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and lo <= v <= hi):
+    # (an int beyond a float's range is checked by its size: math.isfinite would overflow on it)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) \
+            or not ((abs(v) <= sys.float_info.max if isinstance(v, int) else math.isfinite(v)) and lo <= v <= hi):
         raise UserError(f"{where} must be a finite number in [{lo:g}, {hi:g}], got {shown(v)}")
     return float(v)
+
+
+def draw_in_disc(rng: np.random.Generator, sigma: float, r: float) -> np.ndarray:
+    """An offset from N(0, σ²I) conditioned on ‖d‖ ≤ r, exactly: the radius from the Rayleigh
+    CDF 1 − exp(−ρ²/2σ²) inverted on [0, r], the direction uniform."""
+    p_in = -math.expm1(-r**2 / (2 * sigma**2))
+    rho = min(sigma * math.sqrt(-2.0 * math.log1p(-rng.uniform() * p_in)), r)
+    ang = rng.uniform(0, 2 * math.pi)
+    return np.array([rho * math.cos(ang), rho * math.sin(ang)])
 
 
 def _read_summary(p: Path, mission: Mission, mission_path: str, ids: list[str]) -> tuple[dict, dict[str, float]]:
@@ -48,6 +59,8 @@ def _read_summary(p: Path, mission: Mission, mission_path: str, ids: list[str]) 
         s = json.loads(p.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as e:
         raise UserError(f"--summary: {p} is not a capm-field run's summary.json ({type(e).__name__}: {e})") from e
+    except RecursionError:
+        raise UserError(f"--summary: {p} is not a capm-field run's summary.json (JSON nested too deeply)") from None
     bad = f"--summary: {p} is not a capm-field run's summary.json"
     if not isinstance(s, dict) or not isinstance(s.get("targets"), list):
         raise UserError(f"{bad} (no list of targets)")
@@ -87,6 +100,9 @@ def main(argv: list[str]) -> int:
     if a.trials < 2:
         raise UserError(f"--trials must be ≥ 2, got {a.trials}")
     mission, trois = load_mission(a.mission)
+    if mission.planner == "field":  # it plans across targets: no per-target plan to draw MPOIs against
+        raise UserError(f"{a.mission}: planner 'field' plans across targets; bench-mission compares the per-target "
+                        "planners (a, b, c, cstar): use `capm-field bench-fields` for the field planner")
     s, flamed = _read_summary(Path(a.summary), mission, a.mission, [t.id for t in trois]) if a.summary else (None, {})
     robot = RobotModel(mission.robot)
     core = PlanningCore(robot, get_maps(robot, mission.task, ReachabilityConfig()), mission.task)
@@ -101,10 +117,16 @@ def main(argv: list[str]) -> int:
         plan = planner.plan(here, end, t)
         sigma = mission.task.sigma(t.r)  # not `s`: that is the run's summary, used below
         costs, oks = [], []
+        # P(a draw lands in the TROI disc): with σ ≫ r_w rejection needs ~1/p draws per sample (hours
+        # for r_w of 0.1 mm); then the truncated Rayleigh radius is drawn exactly instead
+        p_in = -math.expm1(-t.r**2 / (2 * sigma**2)) if in_troi else 1.0
         while len(costs) < a.trials:
-            d = rng.normal(scale=sigma, size=2)
-            if in_troi and math.hypot(*d) > t.r:
-                continue
+            if p_in < 0.05:
+                d = draw_in_disc(rng, sigma, t.r)
+            else:
+                d = rng.normal(scale=sigma, size=2)
+                if in_troi and math.hypot(*d) > t.r:
+                    continue
             out = planner.after_observation(plan, np.array(t.xy) + d)
             costs.append(out.cost)
             oks.append(out.success)

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import collections
 import csv
+import dataclasses
 import io
 import json
 import math
 import os
 import re
+import unicodedata
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -22,7 +24,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
-from capm_field.config import RobotConfig, StrictNumbers, TaskConfig, not_bool
+from capm_field.config import MIN_TROI_RADIUS, RobotConfig, StrictNumbers, TaskConfig, not_bool
 from capm_field.errors import UserError, shown
 from capm_field.geometry import FIELD_EXTENT_M as FIELD_EXTENT
 from capm_field.geometry import SE2
@@ -72,8 +74,14 @@ class Pose(_Strict):
         return SE2(self.x, self.y, self.yaw)
 
 
+def _invisible(v: str) -> bool:
+    """Whether `v` holds a character that is no visible text: controls, format characters (U+200B
+    zero-width space, U+202E right-to-left override) or line/paragraph separators (U+2028)."""
+    return any(unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Zl", "Zp") for ch in v)
+
+
 def _troi_id(v: str | None) -> str | None:
-    if v is not None and v != "" and not TROI_ID_RE.match(v):  # "" (or none): a generated id
+    if v is not None and v != "" and (not TROI_ID_RE.match(v) or _invisible(v)):  # "" (or none): a generated id
         raise ValueError(f"a TROI id is 1-64 printable characters, no control characters, no space at either end (got {shown(v)})")
     return v or None
 
@@ -82,7 +90,7 @@ class TroiSpec(_Strict):
     id: str | None = None
     x: Coord
     y: Coord
-    r: float = Field(gt=0.0, le=0.5, description="TROI radius r_w (m)")
+    r: float = Field(ge=MIN_TROI_RADIUS, le=0.5, description="TROI radius r_w (m)")
 
     @field_validator("id")
     @classmethod
@@ -246,7 +254,7 @@ class Mission(_Strict):
     @field_validator("name")
     @classmethod
     def _name(cls, v: str) -> str:
-        if not NAME_RE.match(v):  # it is printed, and written into the summary and the log
+        if not NAME_RE.match(v) or _invisible(v):  # it is printed, and written into the summary and the log
             raise ValueError(f"a mission name is 1-128 printable characters, no control characters, no space at either end (got {shown(v)})")
         return v
 
@@ -656,17 +664,7 @@ def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
         trois = load_prescan(src)
     else:
         # an entry without id is T<index in the file>, unless another entry is given that id
-        used = {t.id for t in mission.field.trois if t.id}
-        trois = []
-        for i, t in enumerate(mission.field.trois):
-            tid = t.id
-            if not tid:
-                k = i
-                while f"T{k:02d}" in used:
-                    k += 1
-                tid = f"T{k:02d}"
-                used.add(tid)
-            trois.append(TROI(t.x, t.y, t.r, tid))
+        trois = _fill_ids([TROI(t.x, t.y, t.r, t.id or "") for t in mission.field.trois])
     if not trois:
         raise MissionError([f"{path}:{_line_for(lines, ('field',)) or '?'}: field: no TROIs (list field.trois or give field.prescan)"])
     ids = [t.id for t in trois]
@@ -704,7 +702,7 @@ def load_prescan(src: Path) -> list[TROI]:
             except (KeyError, TypeError, ValueError):
                 problems.append(f"{src}:{i}: need numeric columns x, y, r (got {shown(row)})")
                 continue
-            out.append(_checked_troi(src, i, x, y, r, row.get("id") or f"T{len(out):02d}", problems))
+            out.append(_checked_troi(src, i, x, y, r, row.get("id") or "", problems))
     else:
         try:
             doc = json.loads(text)
@@ -739,10 +737,25 @@ def load_prescan(src: Path) -> list[TROI]:
                                 f"±{FIELD_EXTENT:.0f} (got an integer of {max(len(str(abs(v))) for v in (*coords[:2], r) if isinstance(v, int))} digits)")
                 continue
             tid = props.get("id")  # null and "" are no id, as in field.trois: a generated one
-            tid = f"T{len(out):02d}" if tid is None or tid == "" else str(tid)
+            tid = "" if tid is None else str(tid)
             out.append(_checked_troi(src, None, x, y, r, tid, problems, f"features[{i}]"))
     if problems:
         raise MissionError(problems)
+    return _fill_ids(out)
+
+
+def _fill_ids(trois: list[TROI]) -> list[TROI]:
+    """TROIs without an id get T<index in the list>, or the next T<k> no listed TROI has."""
+    used = {t.id for t in trois if t.id}
+    out = []
+    for i, t in enumerate(trois):
+        if not t.id:
+            k = i
+            while f"T{k:02d}" in used:
+                k += 1
+            t = dataclasses.replace(t, id=f"T{k:02d}")
+            used.add(t.id)
+        out.append(t)
     return out
 
 
@@ -761,9 +774,9 @@ def _is_number(v: Any) -> bool:
 
 
 def _checked_troi(src: Path, line: int | None, x: float, y: float, r: float, tid: str, problems: list[str], where: str = "") -> TROI:
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(r)) or not 0 < r <= 0.5 \
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(r)) or not MIN_TROI_RADIUS <= r <= 0.5 \
             or max(abs(x), abs(y)) > FIELD_EXTENT:
-        problems.append(f"{src}:{line or '?'}: {where + ': ' if where else ''}radius must be in (0, 0.5] m and "
+        problems.append(f"{src}:{line or '?'}: {where + ': ' if where else ''}radius must be in [{MIN_TROI_RADIUS}, 0.5] m and "
                         f"coordinates finite field-frame metres within ±{FIELD_EXTENT:.0f} (got x={x}, y={y}, r={r})")
     try:
         _troi_id(tid)

@@ -315,15 +315,21 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
     pkg = _urdf_package_path()
     if pkg and "ROS_PACKAGE_PATH" not in os.environ:
         os.environ["ROS_PACKAGE_PATH"] = pkg
+    if out.exists() and not out.is_file():  # a device or FIFO: the rename below would replace the node itself
+        raise UserError(f"--rrd {out}: exists and is not a regular file")
     out.parent.mkdir(parents=True, exist_ok=True)
-    # same directory: the rename is atomic; Rerun creates the file itself (umask permissions)
-    part = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.part")
+    # same directory: the rename is atomic; Rerun creates the file itself (umask permissions). A
+    # short name: `out`'s own may already be near the file system's 255-byte limit
+    part = out.with_name(f".rrd-{uuid.uuid4().hex[:12]}.part")
     rec = rr.RecordingStream("capm_field_review", recording_id=str(uuid.uuid4()))
     try:
-        rec.save(str(part), default_blueprint=blueprint())
+        try:
+            rec.save(str(part), default_blueprint=blueprint())
+        except Exception as e:  # noqa: BLE001 - Rerun reports a file it cannot create as a RuntimeError
+            raise UserError(f"--rrd {out}: cannot write it: {e}") from None
         with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
             source = mcap
-            if not data.report.complete or data.report.damaged:
+            if not data.report.complete or data.report.damaged or not data.report.has_summary:
                 # A crash or damaged file: Rerun's own recovery (recover=True) drops channels whose
                 # message index was torn, so hand it a finalised copy of exactly what our reader read.
                 source = Path(tmp) / "salvaged.mcap"
@@ -340,7 +346,10 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
         os.replace(part, out)
     except BaseException:  # incl. Ctrl-C: the partial recording goes, `out` is untouched
         rec.disconnect()
-        part.unlink(missing_ok=True)
+        try:
+            part.unlink(missing_ok=True)
+        except OSError:  # (never created: its directory refused it) the first error is the one to see
+            pass
         raise
     return data
 
@@ -419,6 +428,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {rep.error}", file=sys.stderr)
     elif rep.error:  # a closed file (valid summary) whose read stopped early: damage, not a crash
         print(f"capm-field review: note: {mcap} is damaged; showing what was readable: {rep.error}", file=sys.stderr)
+    elif rep.complete and not rep.has_summary:  # closed, but its summary failed its CRC (or was never written)
+        print(f"capm-field review: note: {mcap} has no valid summary section; showing what its data section holds",
+              file=sys.stderr)
     if rep.damage_note():
         print(f"capm-field review: note: {mcap} is damaged: {rep.damage_note()}", file=sys.stderr)
     if rep.undecodable:

@@ -171,7 +171,9 @@ def _run(a: argparse.Namespace) -> int:
         faults = bench_faults(spec, len(trois), mission.drivers.transport)  # before anything is written
     elif a.faults or a.seed is not None:
         raise UserError("--faults and --seed apply to bench missions only (drivers.kind: bench)")
-    out = Path(a.out or mission.output.dir)
+    if a.out == "":  # Path("") is the current directory: an empty --out was silently the mission's output.dir
+        raise UserError("--out: empty directory name (nothing was started)")
+    out = Path(a.out if a.out is not None else mission.output.dir)
     problem = _output_problem(out)
     if problem:
         raise UserError(f"--out: {problem} (nothing was started)")

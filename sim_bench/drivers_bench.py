@@ -157,13 +157,16 @@ class _Parser(argparse.ArgumentParser):
         raise UserError(message)
 
 
+MIN_DURATION_S = 0.5  # a few state periods and command round trips at least
+
+
 def _positive(s: str) -> float:
     try:
         v = float(s)
     except ValueError:
         raise argparse.ArgumentTypeError(f"--duration must be a number of seconds, not {s!r}") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"--duration must be > 0 s, not {s}")
+    if not (v >= MIN_DURATION_S and math.isfinite(v)):  # shorter: no round trip or state gap to measure
+        raise argparse.ArgumentTypeError(f"--duration must be ≥ {MIN_DURATION_S:g} s, not {s}")
     return v
 
 
@@ -200,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     res["igniter_cutoff"] = cut
     res["can_link_loss_detect_ms"] = measure_can_link_loss()
 
-    write_output(a.json, json.dumps(res, indent=2) + "\n", "--json")
+    write_output(a.json, json.dumps(res, indent=2, allow_nan=False) + "\n", "--json")
     z = res["zenoh_cmd_rtt_ms"]
     if z:
         print(f"zenoh cmd rtt: median {z['median']} ms, p99 {z['p99']} ms")

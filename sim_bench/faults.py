@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from capm_field.cli_args import MAX_SEED
-from capm_field.errors import UserError
+from capm_field.errors import UserError, shown
 
 # kind → (default phase, what is injected)
 FAULT_KINDS: dict[str, str] = {
@@ -105,9 +105,9 @@ def parse_faults(spec: Any, n_targets: int) -> list[Fault]:
             return random_faults(int(m.group(1)), n_targets)
         out = []
         for part in spec.split(","):
-            mm = re.fullmatch(r"\s*([a-z_]+)(?:@(\d+))?(?::([a-z]+))?\s*", part)
+            mm = re.fullmatch(r"\s*([a-z_]+)(?:@(\d{1,9}))?(?::([a-z]+))?\s*", part)  # (int() of 4300+ digits raises)
             if not mm:
-                raise UserError(f"--faults: cannot parse {part!r}; expected KIND@TARGET[:PHASE] or random:SEED")
+                raise UserError(f"--faults: cannot parse {shown(part)}; expected KIND@TARGET[:PHASE] or random:SEED")
             out.append(Fault(mm.group(1), int(mm.group(2) or 0), mm.group(3)))
         spec = out
     faults = []

@@ -15,6 +15,7 @@ from sim_bench.drivers_bench import main
         ["--duration", "-1", "--json", "x.json"],
         ["--duration", "abc", "--json", "x.json"],
         ["--duration", "nan", "--json", "x.json"],
+        ["--duration", "1e-9", "--json", "x.json"],  # no round trip in it: a median of nothing (traceback)
         ["--duration", "5"],  # --json is required
         ["--json", "/nonexistent-dir/x.json"],
         ["--json", "x.json", "--cutoff-trials", "0"],

@@ -284,3 +284,82 @@ def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc):
     last = [m.data for m in iter_run(out / "run.mcap", topics={"/igniter/state"})][-1]
     assert not last.flame_on and not last.armed
 
+
+
+# ---- found by a malformed-input audit (session 52) ------------------------------------------------------
+def test_prescan_ids_generated_around_listed_ones(tmp_path):
+    """A row without id was T<row count so far>, even when a listed row had that id: a duplicate."""
+    m = GOOD.replace("  trois:\n    - {x: 1.0, y: 2.0, r: 0.2}\n", "  prescan: PRE\n")
+    (tmp_path / "p.csv").write_text("x,y,r,id\n1,1,0.2,T01\n1.5,1,0.2,\n2,1,0.2,\n")
+    _, trois = load_mission(_write(tmp_path, m.replace("PRE", "p.csv")))
+    assert [t.id for t in trois] == ["T01", "T02", "T03"]  # as field.trois does: the next free T<k>
+    feat = '{"type": "Feature", "geometry": {"type": "Point", "coordinates": [1.5, 0.5]}, "properties": {"radius": 0.2, "id": ID}}'
+    (tmp_path / "p.geojson").write_text('{"type": "FeatureCollection", "features": [%s]}'
+                                        % ", ".join(feat.replace("ID", i) for i in ('"T01"', "null")))
+    _, trois = load_mission(_write(tmp_path, m.replace("PRE", "p.geojson")))
+    assert [t.id for t in trois] == ["T01", "T02"]
+
+
+@pytest.mark.parametrize("old, new, expect", [
+    ("r: 0.2", "r: 1e-20", "field.trois.0.r: Input should be greater than or equal to 0.001"),  # p(x_b,k1) NaN: AssertionError
+    ("seed: 3}", "seed: 3}\ntask: {sigma_scale: 1e-30}", "task.sigma_scale: Input should be greater than or equal to 0.01"),
+    ("field:", "name: \"a\\u2028b\"\nfield:", "name: a mission name is 1-128 printable characters"),  # line separator
+    ("field:", "name: \"\\u202egnp.exe\"\nfield:", "name: a mission name is 1-128 printable characters"),  # RTL override
+    ("r: 0.2}", "r: 0.2, id: \"W\\u200b1\"}", "a TROI id is 1-64 printable characters"),  # zero-width space
+])
+def test_values_that_validated_but_broke_the_run_or_the_display(tmp_path, capsys, old, new, expect):
+    assert old in GOOD
+    rc, err = _validate(tmp_path, GOOD.replace(old, new), capsys)
+    assert rc == 2 and expect in _one_line(err), err
+
+
+def test_paths_over_the_name_limit_and_empty_or_huge_options_are_one_line(tmp_path, capsys):
+    long = str(tmp_path / ("a" * 300))
+    cases = [
+        (["validate", long + ".yaml"], "File name too long"),
+        (["run", "mission/examples/bench_demo.yaml", "--out", long], "File name too long"),
+        (["run", "mission/examples/bench_demo.yaml", "--out", ""], "--out: empty directory name"),
+        (["run", "mission/examples/bench_demo.yaml", "--out", str(tmp_path / "o"), "--faults", "slip@" + "0" * 5000],
+         "--faults: cannot parse"),
+        (["bench", "--trials", "2", "--radius-range", "1e-20,1e-20"], "--radius-range: need 0.001"),
+    ]
+    for argv, expect in cases:
+        rc = cli.main(argv)
+        line = _one_line(capsys.readouterr().err)
+        assert rc == 2 and expect in line and len(line) < 400, (argv[:2], line)
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_bench_mission_refuses_the_field_planner_and_odd_summaries(tmp_path, capsys):
+    text = Path("mission/examples/bench_demo.yaml").read_text()
+    assert "planner: c" in text
+    fp = _write(tmp_path, text.replace("planner: c", "planner: field"))
+    assert cli.main(["bench-mission", str(fp), "--trials", "2"]) == 2
+    assert "bench-fields" in _one_line(capsys.readouterr().err)
+    for bad in ("[" * 100_000 + "]" * 100_000,  # RecursionError
+                '{"success_rate": 1' + "0" * 400 + ', "targets": []}'):  # OverflowError in isfinite
+        s = tmp_path / "s.json"
+        s.write_text(bad)
+        rc = cli.main(["bench-mission", "mission/examples/bench_demo.yaml", "--trials", "2", "--summary", str(s)])
+        line = _one_line(capsys.readouterr().err)
+        assert rc == 2 and "--summary" in line and len(line) < 400, line
+
+
+def test_truncated_gaussian_draws_stay_in_the_disc_with_the_right_spread():
+    """bench-mission's exact draw for σ ≫ r_w (rejection took hours for r_w of 0.1 mm): inside the
+    disc, radius uniform in area when σ ≫ r (mean 2/3 r), Rayleigh when σ ≪ r (mean σ√(π/2))."""
+    import numpy as np
+
+    from mission.bench_mission import draw_in_disc
+
+    rng = np.random.default_rng(0)
+    for sigma, r, mean in ((0.03, 1e-4, 2 / 3 * 1e-4), (0.01, 1.0, 0.01 * (np.pi / 2) ** 0.5)):
+        rho = np.hypot(*np.array([draw_in_disc(rng, sigma, r) for _ in range(20_000)]).T)
+        assert rho.max() <= r and abs(rho.mean() / mean - 1) < 0.02, (sigma, r, rho.mean(), mean)
+
+
+def test_bench_mission_on_a_tiny_troi(tmp_path, capsys):
+    m = _write(tmp_path, GOOD.replace("r: 0.2", "r: 0.001"))
+    out = tmp_path / "b.json"
+    assert cli.main(["bench-mission", str(m), "--trials", "50", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["targets"][0]["success_rate"] >= 0.0

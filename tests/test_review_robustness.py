@@ -237,3 +237,36 @@ def test_a_corrupt_chunk_length_in_a_closed_file_is_damage_not_a_crash(tmp_path,
     got, rep = _totals(crash)
     assert not rep.complete and not rep.has_summary and rep.error.startswith("truncated")
     assert got == [float(i) for i in range(N)][: len(got)] and len(got) < N
+
+
+# ---- 9. the summary section fails its CRC ---------------------------------------------------------
+def test_a_closed_log_whose_summary_is_damaged_is_reviewed_from_its_data_section(tmp_path, capsys):
+    """A Schema record of the summary section damaged (its CRC fails): every message is still in
+    the data section; Rerun, handed the file as it is, refused it for the schema it read there."""
+    src = bytearray(_energy_log(tmp_path / "good.mcap").read_bytes())
+    footer = len(src) - 8 - 29  # footer record: opcode, length, summary_start, summary_offset_start, crc
+    pos, = struct.unpack_from("<Q", src, footer + 9)
+    while src[pos] != 0x03:  # the summary's first Schema record
+        pos += 9 + struct.unpack_from("<Q", src, pos + 1)[0]
+    src[pos + 9 + struct.unpack_from("<Q", src, pos + 1)[0] // 2] ^= 0x55
+    bad = tmp_path / "damaged.mcap"
+    bad.write_bytes(bytes(src))
+    assert _totals(bad)[0] == [float(i) for i in range(N)]  # our reader: everything, from the data section
+    rc, err = _review(bad, tmp_path / "out.rrd", capsys)
+    assert rc == 0 and "no valid summary section" in err, err
+    assert (tmp_path / "out.rrd").stat().st_size > 1000
+
+
+# ---- 10. --rrd paths the file system refuses ------------------------------------------------------
+def test_rrd_names_near_or_over_the_name_limit_and_special_files(tmp_path, capsys):
+    good = _energy_log(tmp_path / "good.mcap")
+    long_ok = tmp_path / ("a" * 245 + ".rrd")  # legal; a temporary name built from it was not
+    rc, err = _review(good, long_ok, capsys)
+    assert rc == 0 and long_ok.stat().st_size > 1000, err
+    rc, err = _review(good, tmp_path / ("b" * 300 + ".rrd"), capsys)
+    assert rc == 2 and "File name too long" in err and err.count("\n") == 1, err
+    fifo = tmp_path / "pipe.rrd"
+    os.mkfifo(fifo)
+    rc, err = _review(good, fifo, capsys)
+    assert rc == 2 and "not a regular file" in err and fifo.is_fifo(), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["good.mcap", long_ok.name, "pipe.rrd"])
