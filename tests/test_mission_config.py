@@ -51,7 +51,7 @@ def test_good_minimal_mission_has_paper_defaults(tmp_path):
 @pytest.mark.parametrize(
     "text, expect",
     [
-        (GOOD.replace("r: 0.2", "r: -0.2"), [":3: field.trois.0.r: Input should be greater than 0"]),
+        (GOOD.replace("r: 0.2", "r: -0.2"), [":3: field.trois.0.r: Input should be greater than or equal to 0.001"]),
         (GOOD.replace("x: 1.0", "x: one"), [":3: field.trois.0.x: Input should be a valid number"]),
         (GOOD + "colour: red\n", [":6: colour: Extra inputs are not permitted"]),
         (GOOD.replace("kind: bench", "kind: moon"), [":5: drivers"]),
