@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
             raise  # not a path the user gave: a fault to see whole
         # a path the checks before could not judge (a name over the file system's limit, a
         # device, /proc): one line naming it, as for any bad input
-        print(f"capm-field {name}: error: {shown(os.fsdecode(e.filename), 120)}: {e.strerror or e}", file=sys.stderr)
+        print(f"capm-field {name}: error: {shown(os.fsdecode(e.filename) if isinstance(e.filename, (str, bytes)) else str(e.filename), 120)}: {e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"capm-field {name}: interrupted", file=sys.stderr)

@@ -1,6 +1,8 @@
 """Errors a user can cause. The CLI prints them as one line and exits with code 2."""
 
+import math
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +26,14 @@ def shown(value: Any, limit: int = SHOWN) -> str:
     except Exception:  # noqa: BLE001 - any value a decoder can make must be describable
         return f"<a {type(value).__name__}>"
     return text if len(text) <= limit + 2 else text[:limit] + "…"
+
+
+def finite_real(v: Any) -> bool:
+    """A finite real number from a decoder (JSON, CBOR): a finite float, or an int a float can hold
+    (not a bool). A bignum such as 2**1100 is not one: `math.isfinite` raises OverflowError on it."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    return abs(v) <= sys.float_info.max if isinstance(v, int) else math.isfinite(v)
 
 
 def check_output(path: str | None, option: str) -> None:

@@ -9,18 +9,16 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import os
 import re
 import ssl
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import cbor2
 
-from capm_field.errors import shown
+from capm_field.errors import finite_real, shown
 from capm_field.geometry import FIELD_EXTENT_M
 
 VERSION = 1
@@ -111,14 +109,6 @@ def one_line(detail: str, limit: int = TEXT_MAX) -> str:
     return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
-def _finite_real(v: Any) -> bool:
-    """A real: a finite CBOR float, or an integer that a float can hold (a CBOR bignum such as
-    2**1100 is not one: `math.isfinite` would raise OverflowError on it)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return False
-    return abs(v) <= sys.float_info.max if isinstance(v, int) else math.isfinite(v)
-
-
 def _check(value: Any, typ: str, name: str) -> None:
     if typ.endswith("?"):
         if value is None:
@@ -128,7 +118,7 @@ def _check(value: Any, typ: str, name: str) -> None:
         "str": lambda v: isinstance(v, str) and len(v) <= TEXT_MAX,
         "id": lambda v: isinstance(v, str) and bool(_ID_RE.fullmatch(v)),
         "int": lambda v: isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**64,
-        "float": _finite_real,
+        "float": finite_real,  # (an int a float can hold is a real; a CBOR bignum is not)
         "coord": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= GOAL_EXTENT_M,
         "bool": lambda v: isinstance(v, bool),
         "status": lambda v: v in MOVE_STATUSES,

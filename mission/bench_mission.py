@@ -21,7 +21,7 @@ import numpy as np
 
 from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
-from capm_field.errors import UserError, check_output, shown, write_output
+from capm_field.errors import UserError, check_output, finite_real, shown, write_output
 from capm_field.planners import PlanningCore, make_planner
 from capm_field.reachability import get_maps
 from capm_field.robot_model import RobotModel
@@ -34,17 +34,20 @@ def _number(v: Any, where: str, lo: float = 0.0, hi: float = math.inf) -> float:
     """A finite JSON number in [lo, hi] (not a bool, not a string), else UserError naming `where`."""
     if v is None:
         raise UserError(f"{where} is missing")
-    # (an int beyond a float's range is checked by its size: math.isfinite would overflow on it)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) \
-            or not ((abs(v) <= sys.float_info.max if isinstance(v, int) else math.isfinite(v)) and lo <= v <= hi):
+    if not finite_real(v) or not lo <= v <= hi:
         raise UserError(f"{where} must be a finite number in [{lo:g}, {hi:g}], got {shown(v)}")
     return float(v)
 
 
+def disc_mass(sigma: float, r: float) -> float:
+    """P(‖d‖ ≤ r) for d ~ N(0, σ²I): the Rayleigh CDF 1 − exp(−r²/2σ²)."""
+    return -math.expm1(-r**2 / (2 * sigma**2))
+
+
 def draw_in_disc(rng: np.random.Generator, sigma: float, r: float) -> np.ndarray:
     """An offset from N(0, σ²I) conditioned on ‖d‖ ≤ r, exactly: the radius from the Rayleigh
-    CDF 1 − exp(−ρ²/2σ²) inverted on [0, r], the direction uniform."""
-    p_in = -math.expm1(-r**2 / (2 * sigma**2))
+    CDF inverted on [0, r], the direction uniform."""
+    p_in = disc_mass(sigma, r)
     rho = min(sigma * math.sqrt(-2.0 * math.log1p(-rng.uniform() * p_in)), r)
     ang = rng.uniform(0, 2 * math.pi)
     return np.array([rho * math.cos(ang), rho * math.sin(ang)])
@@ -119,7 +122,7 @@ def main(argv: list[str]) -> int:
         costs, oks = [], []
         # P(a draw lands in the TROI disc): with σ ≫ r_w rejection needs ~1/p draws per sample (hours
         # for r_w of 0.1 mm); then the truncated Rayleigh radius is drawn exactly instead
-        p_in = -math.expm1(-t.r**2 / (2 * sigma**2)) if in_troi else 1.0
+        p_in = disc_mass(sigma, t.r) if in_troi else 1.0
         while len(costs) < a.trials:
             if p_in < 0.05:
                 d = draw_in_disc(rng, sigma, t.r)

@@ -204,7 +204,7 @@ def node_acts_in_hold(name: str, sig: dict) -> bool:
         return int(sig["Command"]) in (IGN_NOP, IGN_DISARM, IGN_EXTINGUISH)
     if name == "ARM_CMD":
         return int(sig["Command"]) in (ARM_NOP, ARM_STOP)
-    return name not in ("IGN_CMD", "ARM_CMD")
+    return True
 
 
 class Receiver:
