@@ -8,30 +8,47 @@ exactly as a conic, which gives both NSV terms in closed form and vectorised ove
   * view coverage 1_coverage: the image ellipse lies inside the image and the whole disc is in
     front of the camera (so R^g_w ⊂ R^FoV_w);
   * target resolution h = Area(R^TROI_I) / (u_max·v_max) ≥ δ.
+
+A real lens's distortion (`CameraConfig.distortion`, lens.py) sits between that ideal image and
+the raw frame: `ground_to_pixel` / `pixel_to_ground` map raw pixels (what the detector sees), the
+homography and the conics stay ideal, and coverage is tested against the part of the ideal image
+that the raw frame surely sees (`Lens.ideal_bounds`). Without distortion both images are one.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from .config import CameraConfig
+from .lens import Lens
 
 
 @dataclass(frozen=True)
 class PinholeCamera:
-    """Intrinsics K and resolution u_max × v_max."""
+    """Intrinsics K, resolution u_max × v_max and lens distortion `dist` (OpenCV's order; empty: none)."""
 
     width: int
     height: int
     K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def from_config(cls, cfg: CameraConfig) -> "PinholeCamera":
         cx, cy = cfg.principal_point
         K = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
-        return cls(cfg.width, cfg.height, K)
+        return cls(cfg.width, cfg.height, K, np.asarray(cfg.distortion, dtype=float))
+
+    @cached_property
+    def lens(self) -> Lens:
+        return Lens(np.asarray(self.K, float), np.asarray(self.dist, float).ravel(), self.width, self.height)
+
+    @property
+    def distorted(self) -> bool:
+        """Whether raw pixels differ from the ideal pinhole image's."""
+        return self.lens.active
 
     @property
     def image_area(self) -> float:
@@ -47,18 +64,22 @@ class PinholeCamera:
         return np.einsum("ij,...jk->...ik", self.K, M)
 
     def ground_to_pixel(self, T_field_cam: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        """Field ground points (N, 2) → pixels (N, 2). Points behind the camera give NaN."""
+        """Field ground points (N, 2) → raw pixels (N, 2). Points behind the camera, or (with
+        distortion) beyond the lens model's field, give NaN."""
         H = self.homography(T_field_cam)
         xy = np.atleast_2d(np.asarray(xy, dtype=float))
         ph = np.c_[xy, np.ones(len(xy))] @ H.T
         with np.errstate(divide="ignore", invalid="ignore"):
             uv = ph[:, :2] / ph[:, 2:3]
         uv[ph[:, 2] <= 0] = np.nan
-        return uv
+        return self.lens.distort(uv) if self.distorted else uv
 
     def pixel_to_ground(self, T_field_cam: np.ndarray, uv: np.ndarray) -> np.ndarray:
-        """Pixels (N, 2) → field ground points (N, 2) via H⁻¹. Rays missing the ground give NaN."""
+        """Raw pixels (N, 2) → field ground points (N, 2) via H⁻¹ (after undistorting them). Rays
+        missing the ground give NaN."""
         uv = np.atleast_2d(np.asarray(uv, dtype=float))
+        if self.distorted:
+            uv = self.lens.undistort(uv)
         rays_cam = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(self.K).T
         T = np.asarray(T_field_cam, dtype=float)
         rays = rays_cam @ T[:3, :3].T
@@ -85,6 +106,8 @@ class PinholeCamera:
                 np.c_[np.zeros(n), np.linspace(h - 1, 0, n)],
             ]
         )
+        if self.distorted:
+            border = self.lens.undistort(border)
         T = np.asarray(T_field_cam, dtype=float)
         rays = np.c_[border, np.ones(len(border))] @ np.linalg.inv(self.K).T @ T[:3, :3].T
         c = T[:3, 3]
@@ -122,7 +145,8 @@ class PinholeCamera:
         """(coverage, area_ratio) of ground discs seen from camera poses, batched.
 
         coverage: the disc is entirely in front of the camera and its image ellipse lies inside
-        the image shrunk by `margin_px` (1_coverage). area_ratio: h(x_e, R^TROI_w) =
+        the image shrunk by `margin_px` (1_coverage; with distortion, inside `Lens.ideal_bounds`,
+        and where covered the area is that of the ellipse's raw image, `Lens.raw_area`). area_ratio: h(x_e, R^TROI_w) =
         Area(ellipse) / (u_max·v_max); 0 where the disc is not fully in front of the camera.
         """
         T = np.asarray(T_field_cam, dtype=float)
@@ -148,9 +172,14 @@ class PinholeCamera:
             D = np.linalg.inv(np.where(ok[..., None, None], Cp, np.eye(3)))
             umin, umax = _roots(D[..., 2, 2], D[..., 0, 2], D[..., 0, 0])
             vmin, vmax = _roots(D[..., 2, 2], D[..., 1, 2], D[..., 1, 1])
-        lo = -0.5 + margin_px
-        inside = (umin >= lo) & (vmin >= lo) & (umax <= self.width - 0.5 - margin_px) & (vmax <= self.height - 0.5 - margin_px)
+        u_lo, v_lo, u_hi, v_hi = self.lens.ideal_bounds
+        m = margin_px
+        inside = (umin >= u_lo + m) & (vmin >= v_lo + m) & (umax <= u_hi - m) & (vmax <= v_hi - m)
         coverage = ok & inside & np.isfinite(umin) & np.isfinite(vmin)
+        if self.distorted and np.any(coverage):  # h counts raw pixels: the covered ellipses bent by the lens
+            area = np.array(area, dtype=float)  # (NSV needs coverage, so only those are measured)
+            raw = self.lens.raw_area(Cp[coverage])
+            area[coverage] = np.where(np.isfinite(raw), raw, 0.0)
         return coverage, np.where(ok, area / self.image_area, 0.0)
 
 

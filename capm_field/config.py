@@ -110,6 +110,7 @@ class ArmConfig(_Frozen):
 
 
 MAX_PIXELS = 8192  # px per image side (8K; the bench renders every frame at this size)
+MAX_DISTORTION = 1e4  # |coefficient|: calibrations of fisheye-like lenses reach tens (rational k4..k6)
 
 
 class CameraConfig(_Frozen):
@@ -121,11 +122,37 @@ class CameraConfig(_Frozen):
     fy: float = Field(1000.0, gt=0.0, le=1e5, description="focal length (px)")
     cx: float | None = Field(None, ge=-1e5, le=1e5, description="principal point (px); default: image centre")
     cy: float | None = Field(None, ge=-1e5, le=1e5, description="principal point (px); default: image centre")
+    distortion: tuple[float, ...] = Field(
+        (),
+        description="lens distortion as cv2.calibrateCamera gives it: (k1, k2, p1, p2), (k1, k2, p1, p2, k3) "
+        "(ROS plumb_bob) or 8 values (rational_polynomial); () or zeros: none",
+    )
     # Hand-eye transform: camera optical frame (z forward, x right, y down) in the flange frame.
     # Default: 6 cm above the tool axis, looking along the flange x axis.
     hand_eye: Transform = Field(
         default_factory=lambda: Transform(xyz=(0.06, 0.0, 0.06), rpy=(-1.5707963267948966, 0.0, -1.5707963267948966))
     )
+
+    @field_validator("distortion")
+    @classmethod
+    def _distortion_form(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        from .lens import LENGTHS
+
+        if len(v) not in LENGTHS:
+            raise ValueError(f"give 4, 5 or 8 distortion coefficients in OpenCV's order (k1, k2, p1, p2, k3, ...), or none (got {len(v)})")
+        if any(abs(c) > MAX_DISTORTION for c in v):
+            raise ValueError(f"a distortion coefficient beyond ±{MAX_DISTORTION:g} is no lens calibration")
+        return v
+
+    @model_validator(mode="after")
+    def _distortion_inverts(self) -> "CameraConfig":
+        from .lens import check
+
+        cx, cy = self.principal_point
+        why = check([[self.fx, 0.0, cx], [0.0, self.fy, cy], [0.0, 0.0, 1.0]], self.distortion, self.width, self.height)
+        if why is not None:
+            raise ValueError(f"distortion {list(self.distortion)} {why}: is it this camera's calibration, for this resolution?")
+        return self
 
     @property
     def principal_point(self) -> tuple[float, float]:

@@ -155,8 +155,13 @@ RoiLike = Union[Roi, np.ndarray, tuple, None]  # np.ndarray: a 3×3 conic or an 
 
 def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, radius: float) -> Roi:
     """R^TROI_I: the image of the TROI ground disc (centre X_w, radius r_w) seen from T_field_cam,
-    with the pixel → ground map in TROI radii (`Roi.ground`)."""
+    with the pixel → ground map in TROI radii (`Roi.ground`). Through a distorting lens the disc's
+    raw image is no exact ellipse: the Roi is then fitted to it (`_fitted_roi`)."""
     T = np.asarray(T_field_cam, float)
+    if camera.distorted:
+        fitted = _fitted_roi(camera, T, np.asarray(centre_xy, float).reshape(2), float(radius))
+        if fitted is not None:
+            return fitted
     C = camera.disc_conic(T, np.asarray(centre_xy, float), np.asarray(radius, float))
     x0, y0 = (float(v) for v in np.asarray(centre_xy, float).reshape(2))
     r = float(radius)
@@ -166,6 +171,29 @@ def roi_from_troi(camera: PinholeCamera, T_field_cam: np.ndarray, centre_xy, rad
     except np.linalg.LinAlgError:  # a camera in the ground plane: the detector keeps pixel measures
         ground = None
     return Roi.from_conic(C, ground)
+
+
+def _fitted_roi(camera: PinholeCamera, T: np.ndarray, centre_xy: np.ndarray, radius: float) -> Roi | None:
+    """The Roi of a TROI disc seen through a distorting lens: the ellipse fitted (least squares,
+    OpenCV) to the raw image of its rim, and the homography fitted to raw pixels of points across
+    the disc (a local model of the pixel → ground map, in TROI radii). None when part of the disc
+    maps to no pixel (then the ideal conic stands in)."""
+    a = np.linspace(0.0, 2.0 * math.pi, 72, endpoint=False)
+    rings = [(0.0, np.zeros(1))] + [(f, a[:: 72 // n]) for f, n in ((0.35, 12), (0.7, 24), (1.0, 72))]
+    unit = np.concatenate([np.c_[f * np.cos(t), f * np.sin(t)] for f, t in rings])  # TROI radii
+    uv = camera.ground_to_pixel(T, centre_xy + radius * unit)
+    if not np.isfinite(uv).all():
+        return None
+    rim = uv[-72:].astype(np.float32)
+    (cu, cv_), (w, h), ang = cv2.fitEllipse(rim)
+    ground, _ = cv2.findHomography(uv, unit, 0)
+    if ground is None or not (w > 0 and h > 0):
+        return None
+    C = Roi.from_ellipse((cu, cv_), (w / 2, h / 2), ang).conic
+    try:
+        return Roi.from_conic(C, ground)
+    except ValueError:
+        return None
 
 
 def as_roi(roi: RoiLike, image_shape: tuple[int, ...] | None = None) -> Roi | None:

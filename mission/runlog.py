@@ -228,12 +228,14 @@ class RunLog:
 
         K = np.asarray(camera.K, dtype=float)
         P = np.c_[K, np.zeros(3)]
+        D = [float(v) for v in np.asarray(camera.dist, dtype=float).ravel()]
         self._calib_args = dict(
             frame_id=CAMERA,
             width=int(camera.width),
             height=int(camera.height),
-            distortion_model="plumb_bob",
-            D=[0.0] * 5,
+            # ROS / Foxglove names: 5 coefficients plumb_bob (4 padded with k3 = 0), 8 rational_polynomial
+            distortion_model="rational_polynomial" if len(D) == 8 else "plumb_bob",
+            D=D if len(D) == 8 else (D + [0.0] * 5)[:5],
             K=[float(v) for v in K.ravel()],
             R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
             P=[float(v) for v in P.ravel()],

@@ -357,13 +357,38 @@ def render(scene: FieldScene, T_field_cam: np.ndarray, camera: PinholeCamera) ->
     need = _needed_tiles(camera, T, level, i0, j0, ni, nj)
     M, A = _mosaic(scene, level, bbox, need, tuple(int(v) for v in np.clip(haze, 0, 255)))
     Himg = camera.homography(T) @ A
-    img = cv2.warpPerspective(M, Himg, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=tuple(float(v) for v in haze))
-    # rays that miss the ground (above the horizon) see sky
+    border = tuple(float(v) for v in haze)
     Rz = (T[:3, :3] @ np.linalg.inv(camera.K))[2]
+    if camera.distorted:
+        # each raw pixel samples the mosaic where the ideal pinhole camera sees its ray
+        iu, iv = _ideal_grid(camera)
+        Hi = np.linalg.inv(Himg)
+        den = Hi[2, 0] * iu + Hi[2, 1] * iv + Hi[2, 2]
+        mx = ((Hi[0, 0] * iu + Hi[0, 1] * iv + Hi[0, 2]) / den).astype(np.float32)
+        my = ((Hi[1, 0] * iu + Hi[1, 1] * iv + Hi[1, 2]) / den).astype(np.float32)
+        img = cv2.remap(M, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+        img[(Rz[0] * iu + Rz[1] * iv + Rz[2]) > -1e-3] = SKY_BGR
+        return _camera_effects(scene, T, img)
+    img = cv2.warpPerspective(M, Himg, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+    # rays that miss the ground (above the horizon) see sky
     if max(Rz[0] * u + Rz[1] * v + Rz[2] for u in (-0.5, w - 0.5) for v in (-0.5, h - 0.5)) > -1e-9:
         uu, vv = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
         img[(Rz[0] * uu + Rz[1] * vv + Rz[2]) > -1e-3] = SKY_BGR
     return _camera_effects(scene, T, img)
+
+
+_IDEAL: dict = {}
+
+
+def _ideal_grid(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) of the ideal pinhole image seen by each raw pixel of a distorting camera (h, w each; cached)."""
+    key = (camera.width, camera.height, camera.K.tobytes(), np.asarray(camera.dist, float).tobytes())
+    if key not in _IDEAL:
+        uu, vv = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+        ideal = camera.lens.undistort(np.c_[uu.ravel(), vv.ravel()])
+        _IDEAL.clear()
+        _IDEAL[key] = (ideal[:, 0].reshape(uu.shape), ideal[:, 1].reshape(uu.shape))
+    return _IDEAL[key]
 
 
 def _camera_effects(scene: FieldScene, T: np.ndarray, img: np.ndarray) -> np.ndarray:

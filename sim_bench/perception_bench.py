@@ -18,12 +18,13 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from pydantic import ValidationError
 
 from capm_field.cli_args import seed as cli_seed
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
 from capm_field.detector import detect_centre, ground_centre, roi_from_troi
-from capm_field.errors import UserError, check_output, write_output
+from capm_field.errors import UserError, check_output, shown, write_output
 
 from .field_scene import FieldScene
 from .plants import WEED_KINDS
@@ -106,9 +107,11 @@ def _stats(a: list[float]) -> dict:
     return {"median": float(np.median(x)), "p90": float(np.percentile(x, 90)), "max": float(x.max()), "n": len(x)}
 
 
-def run(scenes: int, seed: int, bare_share: float, use_roi: bool = True, progress: bool = True) -> dict:
+def run(
+    scenes: int, seed: int, bare_share: float, use_roi: bool = True, progress: bool = True, camera_cfg: CameraConfig | None = None
+) -> dict:
     cv2.setNumThreads(1)
-    camera = PinholeCamera.from_config(CameraConfig())
+    camera = PinholeCamera.from_config(camera_cfg or CameraConfig())
     delta = TaskConfig().delta
     n_bare = int(round(scenes * bare_share))
     bare_idx = set(np.random.default_rng(seed).choice(scenes, n_bare, replace=False).tolist()) if n_bare else set()
@@ -176,6 +179,7 @@ def run(scenes: int, seed: int, bare_share: float, use_roi: bool = True, progres
             for k, v in sorted(per_kind.items())
         },
         "image": [camera.width, camera.height],
+        "distortion": [float(v) for v in np.asarray(camera.dist).ravel()],
         "threads": 1,
     }
 
@@ -186,6 +190,20 @@ def _fmt(d: dict, unit: str) -> str:
     return f"median {d['median']:.2f} {unit}, p90 {d['p90']:.2f} {unit}, max {d['max']:.2f} {unit}"
 
 
+def _camera_config(text: str) -> CameraConfig:
+    """The bench camera, with `--distortion` coefficients when given (checked as a mission's are)."""
+    if not text.strip():
+        return CameraConfig()
+    try:
+        dist = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise UserError(f"--distortion: give comma-separated numbers (k1,k2,p1,p2[,k3...]), got {shown(text)}") from None
+    try:
+        return CameraConfig(distortion=dist)
+    except ValidationError as e:
+        raise UserError(f"--distortion: {e.errors()[0]['msg'].removeprefix('Value error, ')}") from None
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="capm-field bench-perception", description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=300, help="number of scenes (default 300)")
@@ -194,16 +212,21 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--no-roi", action="store_true", help="search the whole image instead of the projected TROI")
     ap.add_argument("--json", metavar="FILE", help="write the figures to FILE")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument(
+        "--distortion", metavar="K1,K2,P1,P2[,K3[,K4,K5,K6]]", default="",
+        help="render through a lens with this distortion (OpenCV's order) and map the detections back through it",
+    )
     try:
         a = ap.parse_args(argv)
     except SystemExit as e:  # argparse printed its usage and error line already
         return 0 if e.code == 0 else 2
     check_output(a.json, "--json")
+    camera_cfg = _camera_config(a.distortion)
     if a.scenes < 1:
         raise UserError(f"--scenes must be at least 1, got {a.scenes}")
     if not 0.0 <= a.bare_share <= 1.0:
         raise UserError(f"--bare-share must be in [0, 1], got {a.bare_share}")
-    r = run(a.scenes, a.seed, a.bare_share, not a.no_roi, progress=not a.quiet)
+    r = run(a.scenes, a.seed, a.bare_share, not a.no_roi, progress=not a.quiet, camera_cfg=camera_cfg)
     pct = lambda v: "n/a" if v is None else f"{100 * v:.1f} %"  # noqa: E731
     print(f"scenes {r['scenes']} (weed {r['weed_scenes']}, bare {r['bare_scenes']}, no NSV pose {r['skipped_no_nsv_pose']}), seed {r['seed']}, roi {r['roi']}")
     print(f"detection rate        {pct(r['detection_rate'])}")
@@ -212,6 +235,8 @@ def main(argv: list[str]) -> int:
     print(f"centre error (image)  {_fmt(r['centre_error_px'], 'px')}")
     print(f"no plant on bare soil {pct(r['no_plant_rate_bare'])}")
     print(f"latency per frame     median {r['latency_ms']['median']:.1f} ms, p90 {r['latency_ms']['p90']:.1f} ms (1 thread, {r['image'][0]}x{r['image'][1]})")
+    if r["distortion"]:
+        print(f"lens distortion       {', '.join(f'{v:g}' for v in r['distortion'])}")
     for k, v in r["per_kind"].items():
         print(f"  {k:<9} n {v['n']:>3}  detected {pct(v['detection_rate']):>7}  wrong {v['wrong']:>2}  error {_fmt(v['err_mm'], 'mm')}")
     if a.json:

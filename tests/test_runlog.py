@@ -226,6 +226,24 @@ def test_refuses_to_overwrite_and_bad_level(tmp_path, robot, camera):
     log.event(T0, "info", "after close is ignored")
 
 
+@pytest.mark.parametrize(
+    "dist, model, D",
+    [
+        ((), "plumb_bob", [0.0] * 5),
+        ((-0.3, 0.1, 0.0005, -0.0008), "plumb_bob", [-0.3, 0.1, 0.0005, -0.0008, 0.0]),
+        ((-0.3, 0.1, 0.0, 0.0, 0.0, 0.01, 0.02, 0.0), "rational_polynomial", [-0.3, 0.1, 0.0, 0.0, 0.0, 0.01, 0.02, 0.0]),
+    ],
+)
+def test_calibration_carries_the_lens_distortion(tmp_path, robot, dist, model, D):
+    """Foxglove and Rerun read the lens from /camera/calibration: ROS's names and coefficient counts."""
+    cam = PinholeCamera.from_config(CameraConfig(distortion=dist))
+    with RunLog(tmp_path / "run.mcap", robot, cam, bench=True) as log:
+        log.image(T0, np.zeros((cam.height, cam.width, 3), np.uint8), "w1")
+    _, msgs = read_all(tmp_path / "run.mcap")
+    cal = msgs["/camera/calibration"][-1][3]
+    assert cal.distortion_model == model and list(cal.D) == pytest.approx(D)
+
+
 def test_quaternions_match_scipy():
     R = Rotation.random(500, random_state=3).as_matrix()
     R = np.concatenate([R, np.diag([1.0, -1, -1])[None], np.diag([-1.0, 1, -1])[None], np.diag([-1.0, -1, 1])[None]])
