@@ -5,7 +5,8 @@ rational), as `cv2.calibrateCamera` estimates it and ROS names it (`plumb_bob`: 
 The planning core reasons on the ideal pinhole image (K, no distortion), where the ground plane
 maps by the homography H(x_e) (camera.py). A real lens bends that image: a pixel the detector
 finds in the raw frame is first moved to where the ideal camera would see the same ray
-(`undistort`), and an ideal pixel is bent back for the raw frame (`distort`). Both use OpenCV.
+(`undistort`, OpenCV's iterative inversion), and an ideal pixel is bent back for the raw frame
+(`distort`, OpenCV's model written out in numpy: `_bend`, tested against cv2.projectPoints).
 
 A distortion polynomial is a valid lens model only where it is one-to-one: beyond the radius where
 it folds back, far rays would land inside the image. `check` refuses coefficients that fold, or
