@@ -137,7 +137,9 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # keep the components of this plant: the largest and those within reach of it
         big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
         groups = group_components(lab, stats, [c for c in range(1, n) if stats[c, cv2.CC_STAT_AREA] >= 3])
-        g = next(gr for gr in groups if big in gr)
+        g = next((gr for gr in groups if big in gr), None)
+        if g is None:  # even the largest component is under 3 px at this scale: nothing to locate
+            return None, 0, 0.0
     plant = np.isin(lab, g)
     if int(plant.sum()) < 3 or plant.all():
         # (a mask without one soil pixel in a crop reaching past the plant's box: its threshold

@@ -91,3 +91,21 @@ def test_a_clover_grouped_with_specks_is_located_on_its_own_box(monkeypatch) -> 
     assert _error(7, 27) < 0.005
     monkeypatch.setattr(detector, "SPECK_INFLATION", math.inf)
     assert _error(7, 27) > 0.030
+
+
+def test_a_plant_whose_stage2_crop_holds_only_specks_is_no_internal_error(caplog) -> None:
+    """Stage 2 re-cuts the chosen plant at full resolution; when every component there is under
+    3 px, there is nothing to locate (was: StopIteration, logged, the whole frame `bad_image`).
+    A fuzzed frame: blotchy purplish soil with one 1-px green line (found by a fuzzing audit)."""
+    rng = np.random.default_rng(832)
+    H, W = 400, 900
+    tex = float(rng.uniform(10, 30))
+    rng.uniform(0, 3)
+    img = cv2.resize(rng.normal(0, tex, (H // 8, W // 8, 3)).astype(np.float32), (W, H)) + np.float32((90, 80, 130))
+    img += rng.normal(0, 4, img.shape).astype(np.float32)
+    rng.random()
+    p = [int(rng.integers(0, n)) for n in (W, H, W, H)]
+    cv2.line(img, (p[0], p[1]), (p[2], p[3]), (60, 170, 110), 1)
+    with caplog.at_level("WARNING", logger="capm_field"):
+        det = detect_centre(np.clip(img, 0, 255).astype(np.uint8))
+    assert det.reason != "bad_image" and not [r for r in caplog.records if r.levelname in ("ERROR", "CRITICAL")]
