@@ -938,6 +938,11 @@ def test_degenerate_or_huge_roi_is_answered_without_a_traceback(caplog) -> None:
     with caplog.at_level("ERROR", logger="capm_field.detector"):
         assert detect_centre(img, ((376, 195), (0, 0), 0)).reason == "bad_image"
         assert detect_centre(img, np.diag([1.0, 1.0, 1.0])).reason == "bad_image"
+        # a Roi built directly (not by from_conic / roi_from_troi) with a ground map that is no map
+        conic = Roi.from_ellipse((376, 195), (150, 150)).conic
+        rank2 = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]])
+        for ground in (np.zeros((3, 3)), rank2, np.eye(2), np.full((3, 3), np.nan)):
+            assert detect_centre(img, Roi(conic, ground)).reason == "bad_image"
         whole = detect_centre(img)
         for roi in (((376, 195), (1e9, 1e9), 0), ((320, 240), (4000, 3000), 10.0)):
             assert detect_centre(img, roi).pixel == whole.pixel
