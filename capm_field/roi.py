@@ -35,6 +35,19 @@ class Roi:
     conic: np.ndarray
     ground: np.ndarray | None = field(default=None, compare=False)
 
+    def __post_init__(self) -> None:
+        """A ground map must be a homography that reaches the TROI centre (checked here, so a Roi
+        built directly is held to it as well as one from `from_conic`)."""
+        if self.ground is None:
+            return
+        g = np.asarray(self.ground, float).reshape(3, 3)
+        if not np.all(np.isfinite(g)) or abs(np.linalg.det(g)) < 1e-300:
+            raise ValueError("ground homography is singular")
+        object.__setattr__(self, "ground", g)
+        w0 = self._ground_w0  # LinAlgError (a ValueError) when numerically singular
+        if not (math.isfinite(w0) and w0 != 0.0):
+            raise ValueError("the ground homography does not reach the TROI centre")
+
     @classmethod
     def from_conic(cls, C: np.ndarray, ground: np.ndarray | None = None) -> "Roi":
         C = np.asarray(C, float).reshape(3, 3)
@@ -50,10 +63,6 @@ class Roi:
             C = -C
         if (np.r_[c, 1.0] @ C @ np.r_[c, 1.0]) >= 0:
             raise ValueError("conic has no interior")
-        if ground is not None:
-            ground = np.asarray(ground, float).reshape(3, 3)
-            if not np.all(np.isfinite(ground)) or abs(np.linalg.det(ground)) < 1e-300:
-                raise ValueError("ground homography is singular")
         return cls(C, ground)
 
     @classmethod

@@ -68,10 +68,6 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
         roi = as_roi(roi_in, (H, W))
         if roi is not None:
             c, ax, ang = roi.params()  # raises for a conic without interior
-            if roi.ground is not None:  # a Roi built directly skips from_conic's check of its ground map
-                Roi.from_conic(roi.conic, roi.ground)
-                if not (math.isfinite(roi._ground_w0) and roi._ground_w0 != 0.0):  # raises if singular
-                    raise ValueError("the ROI's ground map does not reach the TROI centre")
             # an ellipse holding all four corners holds the whole (convex) frame: no ROI then
             if bool(np.all(roi.contains(np.array([[0.0, 0.0], [W - 1.0, 0.0], [0.0, H - 1.0], [W - 1.0, H - 1.0]])))):
                 roi = None
