@@ -62,6 +62,8 @@ def compound_hubs(plant: np.ndarray, vi: np.ndarray, soil: float, size: float):
     f = np.clip((vi - soil) / (top - soil + 1e-6), 0, 1).astype(np.float32)
     r2 = SCALE * size
     ks, area = _ring_kernels(RING[0] * r2, r2)
+    if area == 0:  # a plant so small that the ring holds no pixel: no lobes to see
+        return np.zeros((0, 2)), np.zeros(0, np.float32), np.zeros(0)
     amp = []
     for kc, kss in ks:
         c = cv2.filter2D(f, -1, kc, borderType=cv2.BORDER_CONSTANT)

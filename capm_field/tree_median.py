@@ -140,8 +140,8 @@ def tree_median(plant: np.ndarray, vi: np.ndarray | None = None, out: dict | Non
     gy, gx = np.mgrid[y0_:y1_, x0_:x1_]
     cx, cy = float((wgt * gx).sum() / wgt.sum()), float((wgt * gy).sum() / wgt.sum())
     # sharpness: how much F rises 10 % of the plant size away from the minimum
-    ring = (np.hypot(gx - ix, gy - iy) >= 2)
-    rise = float(np.nanmin(np.where(ring & np.isfinite(win), win, np.nan))) - fmin if ring.any() else 0.0
+    ring = (np.hypot(gx - ix, gy - iy) >= 2) & np.isfinite(win)
+    rise = float(win[ring].min()) - fmin if ring.any() else 0.0  # none finite there: not sharp
     sharp = float(np.clip(rise / (0.02 * fmin + 1e-6), 0, 1)) if np.isfinite(rise) else 0.0
     return np.array([cx, cy]), len(tips), sharp
 
