@@ -131,6 +131,14 @@ class Roi:
         c, ax, ang = self.params()
         return (float(c[0]), float(c[1])), (float(2 * ax[0]), float(2 * ax[1])), ang
 
+    def rim(self, n: int = 72) -> np.ndarray:
+        """n pixels (n, 2) on the ellipse's rim, evenly in its parameter (for drawing it)."""
+        c, ax, ang = self.params()
+        t = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+        a = math.radians(ang)
+        e = np.c_[ax[0] * np.cos(t), ax[1] * np.sin(t)]
+        return c + e @ np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])
+
     def on_ground(self, uv) -> tuple[float, float] | None:
         """For pixel uv: (distance from the TROI centre in TROI radii, ground area of a pixel there
         ÷ that at the TROI centre's image), from `ground`; None without it or off the ground."""

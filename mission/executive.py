@@ -366,7 +366,8 @@ class Executive:
         Only an answer without a reason is acted on: an "ambiguous" detection carries the best
         guess's pixel (logged), but two near-equal plants in the TROI may as well be the other
         one; the next attempt looks again from another pose instead of flaming a guess."""
-        det = self.detect(image, roi=self._roi(T_cam, troi))
+        roi = self._roi(T_cam, troi)
+        det = self.detect(image, roi=roi)
         mpoi, why = None, det.reason
         if det.pixel is not None and det.reason is None:
             g = self.camera.pixel_to_ground(T_cam, np.array([det.pixel]))[0]
@@ -375,7 +376,8 @@ class Executive:
             else:
                 why = "off_ground"
         if self.log:
-            self.log.detection(self.now_ns(), tid, det.pixel, det.confidence, det.reason, tuple(mpoi) if mpoi is not None else None)
+            self.log.detection(self.now_ns(), tid, det.pixel, det.confidence, det.reason,
+                               tuple(mpoi) if mpoi is not None else None, roi.rim())
         return mpoi, why
 
     def _roi(self, T_cam: np.ndarray, troi: TROI):

@@ -36,7 +36,7 @@ from capm_field.errors import UserError, check_output
 
 from .runlog import PROTO_TOPICS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
-from .runlog_schema import message_class
+from .runlog_schema import ADDED_FIELDS, message_class
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
 FIELD = "field"
@@ -87,13 +87,17 @@ def _descriptor_problem(theirs: Any, ours: Any, seen: set[str] | None = None) ->
     """Why a message decoded with the file's descriptor `theirs` cannot be read as our `ours`
     (a field is missing, or of another type or cardinality), else None. A hand-made or foreign
     file may name our schema with other fields: reading them would crash. All our fields are
-    required: the schema has not changed since the first run log (a change would relax this)."""
+    required but those added since the first run logs (`runlog_schema.ADDED_FIELDS`), which an
+    older log lacks."""
     seen = set() if seen is None else seen
     if ours.full_name in seen:
         return None
     seen.add(ours.full_name)
+    added = ADDED_FIELDS.get(ours.name, frozenset())
     for f in ours.fields:
         g = theirs.fields_by_name.get(f.name)
+        if g is None and f.name in added:
+            continue
         if g is None:
             return f"its {theirs.full_name} has no field {f.name}"
         if g.type != f.type or g.is_repeated != f.is_repeated:
@@ -238,6 +242,11 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
         tid = m.target_id
         if m.HasField("mpoi_field"):
             lg.log(f"/review/detection/{_part(tid)}", rr.Points3D([[m.mpoi_field.x, m.mpoi_field.y, 0.01]], colors=[COLORS["detection"]], radii=[0.015], labels=[f"MPOI {m.confidence:.2f}"]))
+        rim = [(p.x, p.y) for p in getattr(m, "roi_rim", ()) if math.isfinite(p.x) and math.isfinite(p.y)]  # absent in older logs
+        if len(rim) >= 3:  # the ROI the detector searched, as it lay on the raw image
+            lg.log("/camera/image/roi", rr.LineStrips2D([rim + rim[:1]], colors=[COLORS["troi"]], radii=[1.5], labels=[f"ROI {tid}"]), frame=IMAGE_PLANE)
+        else:
+            lg.log("/camera/image/roi", rr.Clear(recursive=False), frame=IMAGE_PLANE)
         if m.HasField("pixel"):
             lg.log("/camera/image/detection", rr.Points2D([[m.pixel.x, m.pixel.y]], colors=[COLORS["detection"]], radii=[8.0], labels=[f"{tid} {m.confidence:.2f}"]), frame=IMAGE_PLANE)
         else:

@@ -425,7 +425,9 @@ class RunLog:
         confidence: float,
         reason: str | None,
         mpoi_field: tuple[float, float] | None,
+        roi_rim: np.ndarray | None = None,
     ) -> None:
+        """One detection attempt; `roi_rim` (n, 2): image pixels of the searched ROI's rim."""
         m = self._proto_msg(
             "detection", t_ns, target_id=target_id, found=pixel is not None, confidence=float(confidence),
             reason=reason or "", frame_id=FIELD,
@@ -434,6 +436,8 @@ class RunLog:
             m.pixel.x, m.pixel.y = float(pixel[0]), float(pixel[1])
         if mpoi_field is not None:
             m.mpoi_field.x, m.mpoi_field.y = float(mpoi_field[0]), float(mpoi_field[1])
+        for u, v in np.asarray(roi_rim if roi_rim is not None else np.zeros((0, 2)), float).reshape(-1, 2):
+            m.roi_rim.add(x=float(u), y=float(v))
         self._log_proto("detection", t_ns, m)
 
     def regions(

@@ -70,6 +70,9 @@ MESSAGES: dict[str, list[tuple[str, str, bool]]] = {
         ("reason", "string", False),  # why not found / rejected; "" otherwise
         ("mpoi_field", "Point2", False),  # MPOI on the ground, field frame
         ("frame_id", "string", False),
+        # (u, v) px in /camera/image: the rim of the ROI searched (the TROI disc × the ROI margin,
+        # through the lens); empty when no ROI. Added after the first logs: may be absent there.
+        ("roi_rim", "Point2", True),
     ],
     "Regions": [
         ("timestamp", ".google.protobuf.Timestamp", False),
@@ -106,6 +109,9 @@ MESSAGES: dict[str, list[tuple[str, str, bool]]] = {
         ("frame_id", "string", False),
     ],
 }
+
+# Fields added after the first run logs: a log written before them is still ours without them.
+ADDED_FIELDS: dict[str, frozenset[str]] = {"Detection": frozenset({"roi_rim"})}
 
 # Messages that are published on a topic (the rest are building blocks).
 TOP_LEVEL = ("KeyState", "Plan", "Detection", "Regions", "Energy", "IgniterStatus", "TruthMpoi")

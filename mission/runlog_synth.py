@@ -16,6 +16,7 @@ import numpy as np
 
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI, KeyState, Plan
+from capm_field.roi import Roi
 
 from .runlog import RunLog
 
@@ -117,7 +118,8 @@ def synthetic_mission(
                 n_img += 1
                 if k == min(image_ticks):
                     mpoi = (troi.x + 0.01, troi.y - 0.02)
-                    log.detection(t, tid, (650.0, 340.0), 0.91, None, mpoi)
+                    rim = Roi.from_ellipse((width / 2, height / 2), (0.3 * width, 0.35 * height), 10.0).rim()  # made up
+                    log.detection(t, tid, (650.0, 340.0), 0.91, None, mpoi, rim)
                     log.regions(t, tid, troi, [(0.35, 0.62)], [(0.30, 0.55)], mpoi)
                     log.truth_mpoi(t, tid, (troi.x + 0.012, troi.y - 0.018))
                     log.event(t, "info", "MPOI detected", target=tid, confidence=0.91)

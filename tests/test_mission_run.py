@@ -64,6 +64,26 @@ def test_run_log_is_valid_mcap_with_the_contract_topics(run_c):
     assert {"/robot_description", "/camera/image", "/camera/calibration", "/log", "/key_state", "/plan", "/detection", "/regions", "/energy", "/igniter/state", "/truth/mpoi"} <= topics
 
 
+def test_each_detection_logs_the_roi_it_searched_and_answers_inside_it(run_c):
+    """/detection carries the ROI's rim on the raw image (review draws it): every detector answer
+    of the run lies inside its ROI."""
+    import cv2
+    import numpy as np
+
+    from mission.runlog_read import iter_run
+
+    _, out = run_c
+    dets = [m.data for m in iter_run(out / "run.mcap", topics={"/detection"}) if m.data.reason != "fault_injected"]
+    answered = [d for d in dets if d.HasField("pixel")]
+    assert answered
+    for d in dets:
+        rim = np.array([(p.x, p.y) for p in d.roi_rim], np.float32)
+        assert len(rim) == 72 and np.all(np.isfinite(rim))
+        assert cv2.contourArea(rim) > 1000  # px²: a real ellipse, not a degenerate one
+        if d.HasField("pixel"):
+            assert cv2.pointPolygonTest(rim, (d.pixel.x, d.pixel.y), False) >= 0
+
+
 def test_flame_only_inside_the_interlock_in_the_log(run_c):
     from mission.runlog_read import iter_run
 

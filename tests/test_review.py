@@ -63,6 +63,7 @@ def test_review_rrd_has_image_transforms_series_and_overlays(run_mcap, tmp_path)
     assert "Points3D:labels" in ents["/review/key_states/t00"]
     assert "Points3D:positions" in ents["/review/detection/t00"]
     assert "Points2D:positions" in ents["/camera/image/detection"]
+    assert "LineStrips2D:strips" in ents["/camera/image/roi"]  # the ROI searched, on the raw image
     assert "message_log_time" in ents["/review/key_states/t00"]  # same timeline as the native import
 
 

@@ -12,6 +12,7 @@ import pytest
 from google.protobuf import descriptor_pb2
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+from rerun.chunk import RrdReader
 
 from capm_field import cli
 from mission import review
@@ -270,3 +271,36 @@ def test_rrd_names_near_or_over_the_name_limit_and_special_files(tmp_path, capsy
     rc, err = _review(good, fifo, capsys)
     assert rc == 2 and "not a regular file" in err and fifo.is_fifo(), err
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["good.mcap", long_ok.name, "pipe.rrd"])
+
+
+def test_a_log_written_before_an_added_field_is_still_ours(tmp_path, capsys):
+    """`Detection.roi_rim` came after the first run logs: a log whose schema lacks it (only it) is
+    reviewed like any other (its detection drawn, no ROI on the image), not skipped as foreign."""
+    from google.protobuf import timestamp_pb2
+
+    from mission.runlog_schema import file_descriptor
+
+    fd = file_descriptor()
+    det = next(m for m in fd.message_type if m.name == "Detection")
+    rim = next(f for f in det.field if f.name == "roi_rim")
+    det.field.remove(rim)
+    ts = descriptor_pb2.FileDescriptorProto()
+    timestamp_pb2.DESCRIPTOR.CopyToProto(ts)
+    old = descriptor_pb2.FileDescriptorSet(file=[ts, fd]).SerializeToString()
+    msg = message_class("Detection")(target_id="W1", found=True, confidence=0.9)
+    msg.pixel.x, msg.pixel.y = 320.0, 200.0
+    p = _write(tmp_path / "old.mcap", [("/detection", "capm.log.Detection", old, [(T0, msg.SerializeToString())])])
+    rc, err = _review(p, tmp_path / "o.rrd", capsys)
+    assert rc == 0 and "skipped" not in err, err
+    assert [m.pixel.x for _, m in review.load_run(p).messages["/detection"]] == [320.0]
+    ents = {}
+    for chunk in RrdReader(tmp_path / "o.rrd").stream():
+        ents.setdefault(chunk.entity_path, set()).update(chunk.to_record_batch().schema.names)
+    assert "Points2D:positions" in ents["/camera/image/detection"]
+    assert "LineStrips2D:strips" not in ents.get("/camera/image/roi", set())
+    # a field that is not an added one is still required: without `pixel` the file is foreign
+    pix = next(f for f in det.field if f.name == "pixel")
+    det.field.remove(pix)
+    worse = descriptor_pb2.FileDescriptorSet(file=[ts, fd]).SerializeToString()
+    p2 = _write(tmp_path / "worse.mcap", [("/detection", "capm.log.Detection", worse, [(T0, b"\x12\x02W1")])])
+    assert not review.load_run(p2).messages["/detection"]
