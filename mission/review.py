@@ -242,7 +242,8 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
         tid = m.target_id
         if m.HasField("mpoi_field"):
             lg.log(f"/review/detection/{_part(tid)}", rr.Points3D([[m.mpoi_field.x, m.mpoi_field.y, 0.01]], colors=[COLORS["detection"]], radii=[0.015], labels=[f"MPOI {m.confidence:.2f}"]))
-        rim = [(p.x, p.y) for p in getattr(m, "roi_rim", ()) if math.isfinite(p.x) and math.isfinite(p.y)]  # absent in older logs
+        # absent in older logs; a foreign file's non-finite or float32-overflowing points are left out
+        rim = [(p.x, p.y) for p in getattr(m, "roi_rim", ()) if abs(p.x) < 1e9 and abs(p.y) < 1e9]
         if len(rim) >= 3:  # the ROI the detector searched, as it lay on the raw image
             lg.log("/camera/image/roi", rr.LineStrips2D([rim + rim[:1]], colors=[COLORS["troi"]], radii=[1.5], labels=[f"ROI {tid}"]), frame=IMAGE_PLANE)
         else:

@@ -304,3 +304,22 @@ def test_a_log_written_before_an_added_field_is_still_ours(tmp_path, capsys):
     worse = descriptor_pb2.FileDescriptorSet(file=[ts, fd]).SerializeToString()
     p2 = _write(tmp_path / "worse.mcap", [("/detection", "capm.log.Detection", worse, [(T0, b"\x12\x02W1")])])
     assert not review.load_run(p2).messages["/detection"]
+
+
+def test_roi_rim_points_no_image_can_hold_are_left_out(tmp_path, capsys):
+    """A foreign Detection whose `roi_rim` holds NaN, ∞ or 1e300 (past float32): reviewed, with
+    the finite part of the rim drawn, not a crash or a warning in Rerun's conversion."""
+    import warnings
+
+    m = message_class("Detection")(target_id="W1", found=False)
+    for x, y in [(1e300, 2.0), (float("nan"), 3.0), (10.0, 10.0), (20.0, 10.0), (20.0, 20.0), (float("inf"), 1.0)]:
+        m.roi_rim.add(x=x, y=y)
+    p = _write(tmp_path / "f.mcap", [("/detection", "capm.log.Detection", descriptor_set_bytes(), [(T0, m.SerializeToString())])])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rc, err = _review(p, tmp_path / "o.rrd", capsys)
+    assert rc == 0, err
+    ents = {}
+    for chunk in RrdReader(tmp_path / "o.rrd").stream():
+        ents.setdefault(chunk.entity_path, set()).update(chunk.to_record_batch().schema.names)
+    assert "LineStrips2D:strips" in ents["/camera/image/roi"]
