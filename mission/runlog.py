@@ -436,8 +436,9 @@ class RunLog:
             m.pixel.x, m.pixel.y = float(pixel[0]), float(pixel[1])
         if mpoi_field is not None:
             m.mpoi_field.x, m.mpoi_field.y = float(mpoi_field[0]), float(mpoi_field[1])
-        for u, v in np.asarray(roi_rim if roi_rim is not None else np.zeros((0, 2)), float).reshape(-1, 2):
-            m.roi_rim.add(x=float(u), y=float(v))
+        if roi_rim is not None:
+            for u, v in np.asarray(roi_rim, float).reshape(-1, 2):
+                m.roi_rim.add(x=float(u), y=float(v))
         self._log_proto("detection", t_ns, m)
 
     def regions(

@@ -963,6 +963,20 @@ def test_roi_representations_agree() -> None:
     assert list(r2.contains(pts)) == [True, True, False]
 
 
+@settings(max_examples=60, deadline=None)
+@given(cu=st.floats(-500.0, 2000.0), cv_=st.floats(-500.0, 2000.0), a=st.floats(0.5, 5000.0), ratio=st.floats(0.05, 1.0),
+       ang=st.floats(-360.0, 360.0))
+def test_roi_rim_lies_on_the_ellipse(cu, cv_, a, ratio, ang) -> None:
+    """`Roi.rim` (the ROI drawn in review): every point on the ellipse's boundary, going once round it."""
+    r = Roi.from_ellipse((cu, cv_), (a, a * ratio), ang)
+    rim = r.rim(72)
+    assert rim.shape == (72, 2)
+    assert r.contains(rim, 1.0 + 1e-6).all() and not r.contains(rim, 1.0 - 1e-6).any()
+    # once round, evenly in the parameter: the polygon's area is that of the inscribed 72-gon
+    area = 0.5 * abs(np.dot(rim[:, 0], np.roll(rim[:, 1], -1)) - np.dot(rim[:, 1], np.roll(rim[:, 0], -1)))
+    assert area == pytest.approx(36 * math.sin(2 * math.pi / 72) * a * a * ratio, rel=1e-6)
+
+
 @settings(max_examples=40, deadline=None)
 @given(cu=st.floats(160.0, 480.0), cv_=st.floats(160.0, 320.0), a=st.floats(3.0, 150.0), ratio=st.floats(0.3, 1.0),
        ang=st.floats(0.0, 180.0))

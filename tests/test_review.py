@@ -17,6 +17,7 @@ from capm_field.keystates import TROI
 from mission.review import main as review_main
 from mission.runlog import RunLog
 from mission.runlog_synth import synthetic_mission
+from rerun_recording import rrd_contents
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,14 +29,6 @@ def run_mcap(tmp_path_factory, robot) -> Path:
     with RunLog(path, robot, cam, bench=True) as log:
         synthetic_mission(log, n_targets=3, seconds_per_target=2.0, images_per_target=1, width=640, height=360)
     return path
-
-
-def rrd_contents(path: Path) -> dict[str, set[str]]:
-    """entity path -> component names, over the recording in the .rrd."""
-    out: dict[str, set[str]] = {}
-    for chunk in RrdReader(path).stream():
-        out.setdefault(chunk.entity_path, set()).update(chunk.to_record_batch().schema.names)
-    return out
 
 
 def test_review_rrd_has_image_transforms_series_and_overlays(run_mcap, tmp_path):

@@ -12,12 +12,12 @@ import pytest
 from google.protobuf import descriptor_pb2
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
-from rerun.chunk import RrdReader
 
 from capm_field import cli
 from mission import review
 from mission.runlog_read import ReadReport, iter_run
 from mission.runlog_schema import descriptor_set_bytes, message_class
+from rerun_recording import rrd_contents
 
 T0 = 1_700_000_000_000_000_000
 N = 300  # Energy messages in the chunked test log: ~10 chunks of 1 KiB
@@ -293,9 +293,7 @@ def test_a_log_written_before_an_added_field_is_still_ours(tmp_path, capsys):
     rc, err = _review(p, tmp_path / "o.rrd", capsys)
     assert rc == 0 and "skipped" not in err, err
     assert [m.pixel.x for _, m in review.load_run(p).messages["/detection"]] == [320.0]
-    ents = {}
-    for chunk in RrdReader(tmp_path / "o.rrd").stream():
-        ents.setdefault(chunk.entity_path, set()).update(chunk.to_record_batch().schema.names)
+    ents = rrd_contents(tmp_path / "o.rrd")
     assert "Points2D:positions" in ents["/camera/image/detection"]
     assert "LineStrips2D:strips" not in ents.get("/camera/image/roi", set())
     # a field that is not an added one is still required: without `pixel` the file is foreign
@@ -319,7 +317,5 @@ def test_roi_rim_points_no_image_can_hold_are_left_out(tmp_path, capsys):
         warnings.simplefilter("error")
         rc, err = _review(p, tmp_path / "o.rrd", capsys)
     assert rc == 0, err
-    ents = {}
-    for chunk in RrdReader(tmp_path / "o.rrd").stream():
-        ents.setdefault(chunk.entity_path, set()).update(chunk.to_record_batch().schema.names)
+    ents = rrd_contents(tmp_path / "o.rrd")
     assert "LineStrips2D:strips" in ents["/camera/image/roi"]
