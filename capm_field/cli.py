@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench-fields": ("capm_field.fields_bench", "whole fields: per-target planners vs the field planner and the oracle"),
     "bench-mission": ("mission.bench_mission", "planner bench on a mission's geometry (check a run against it)"),
     "regions": ("capm_field.regions_plot", "draw R_o, R_m and their overlap to a PNG"),
+    "detect": ("capm_field.detect_cli", "the weed-centre detector on image files (photos, saved frames)"),
     "bench-perception": ("sim_bench.perception_bench", "detector accuracy and latency on rendered scenes"),
     "bench-drivers": ("sim_bench.drivers_bench", "zenoh and CAN transport figures on loopback"),
     "spot-bridge": ("drivers.spot_bridge", "serve the zenoh body protocol on Spot's payload computer"),
