@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench-mission": ("mission.bench_mission", "planner bench on a mission's geometry (check a run against it)"),
     "regions": ("capm_field.regions_plot", "draw R_o, R_m and their overlap to a PNG"),
     "detect": ("capm_field.detect_cli", "the weed-centre detector on image files (photos, saved frames)"),
+    "detect-replay": ("mission.detect_replay", "a run log's images through today's detector, against the logged answers"),
     "bench-perception": ("sim_bench.perception_bench", "detector accuracy and latency on rendered scenes"),
     "bench-drivers": ("sim_bench.drivers_bench", "zenoh and CAN transport figures on loopback"),
     "spot-bridge": ("drivers.spot_bridge", "serve the zenoh body protocol on Spot's payload computer"),

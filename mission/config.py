@@ -224,6 +224,9 @@ class IgniterSpec(_Strict):
 class OutputSpec(_Strict):
     dir: str = "runs/latest"
     images: bool = True
+    image_format: Literal["jpeg", "png"] = Field(
+        "jpeg", description="jpeg (quality 85, ~10× smaller) or png (lossless: `capm-field detect-replay` then sees "
+        "the very frames the detector saw; on JPEG its answers move with the compression)")
 
     @field_validator("dir")
     @classmethod

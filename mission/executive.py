@@ -38,6 +38,13 @@ from .ordering import x_kmax as x_kmax_of
 
 
 TF_PERIOD_NS = 100_000_000  # /tf while the body or the arm moves: at most every 0.1 s of the run's clock
+ROI_MARGIN = 1.5  # × r_w: the MPOI lies in the TROI by design; the margin keeps plants whose centre sits on the rim
+
+
+def roi_for(camera, T_cam: np.ndarray, xy, r: float):
+    """The ROI the detector searches for a TROI (centre xy, radius r) seen from T_cam: the TROI
+    grown by ROI_MARGIN (`capm-field detect-replay` rebuilds it from a run log the same way)."""
+    return roi_from_troi(camera, T_cam, xy, ROI_MARGIN * r)
 
 
 class MissionAborted(RuntimeError):
@@ -381,8 +388,7 @@ class Executive:
         return mpoi, why
 
     def _roi(self, T_cam: np.ndarray, troi: TROI):
-        # The MPOI lies in the TROI by design; a 1.5× margin keeps plants whose centre sits on the rim.
-        return roi_from_troi(self.camera, T_cam, troi.xy, 1.5 * troi.r)
+        return roi_for(self.camera, T_cam, troi.xy, troi.r)
 
     def _flame(self, tid: str, body: SE2, mpoi: np.ndarray) -> float:
         """x_e,k3 and the MTC hold under the interlock. A flame-out or a failed ignition gets one

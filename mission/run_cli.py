@@ -286,7 +286,7 @@ def _open_log(out: Path, made: bool, drivers, robot, mission: Mission, a: argpar
 
     try:
         log = RunLog(out / "run.mcap", robot, _camera(robot), bench=bench, overwrite=a.force, images=mission.output.images,
-                     metadata={"mission_name": mission.name, "mission": str(a.mission)})
+                     image_format=mission.output.image_format, metadata={"mission_name": mission.name, "mission": str(a.mission)})
         try:
             (out / "summary.json").unlink(missing_ok=True)
         except BaseException:

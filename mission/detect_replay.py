@@ -1,0 +1,249 @@
+"""`capm-field detect-replay RUN.mcap [--json FILE]`: the images of a run, through today's detector.
+
+Every `/detection` of the run log whose image was stored is done again: the image that preceded
+it (`/camera/image`, JPEG), the camera pose from the `/tf` tree at that moment (field → … →
+camera), the camera from `/camera/calibration` (K, D) and the target's TROI (`/plan` or
+`/regions`) give the same ROI the executive built (`executive.roi_for`, the TROI × ROI_MARGIN).
+The rebuilt ROI is checked against the one the log holds (`Detection.roi_rim`): a run whose
+geometry cannot be rebuilt says so instead of comparing answers on another region.
+
+Per detection: the logged answer, the replayed one and how far it moved (px); on a bench run,
+both answers' ground errors against `/truth/mpoi` and the count over the wrong-centre line
+(`sim_bench.perception_bench.WRONG_MM`). The logged image is JPEG, not the frame the detector
+saw in the run: answers move with sub-level changes of the image (docs/perception.md §4), so
+the same detector need not give the same answer on every replayed frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from capm_field.camera import PinholeCamera
+from capm_field.detector import detect_centre
+from capm_field.errors import UserError, check_output, write_output
+
+from .executive import roi_for
+from .runlog import TOPICS
+from .runlog_read import ReadReport, iter_run
+
+WRONG_MM = 30.0  # the bench's wrong-centre line (sim_bench.perception_bench.WRONG_MM; mission does not import sim_bench)
+RIM_TOL_PX = 0.5  # rebuilt ROI rim against the logged one: more than this and the geometry is not the run's
+CAMERA = "camera"
+FIELD = "field"
+
+
+@dataclass
+class Replayed:
+    """One detection of the run and its replay."""
+
+    target_id: str
+    t_ns: int
+    logged_pixel: tuple[float, float] | None
+    logged_reason: str | None
+    logged_mpoi: tuple[float, float] | None
+    pixel: tuple[float, float] | None = None
+    reason: str | None = None
+    confidence: float = 0.0
+    mpoi: tuple[float, float] | None = None
+    moved_px: float | None = None
+    rim_px: float | None = None  # largest distance of the rebuilt ROI rim from the logged one
+    truth: tuple[float, float] | None = None
+    error: str | None = None  # why this detection could not be replayed
+
+    def err_mm(self, which: str) -> float | None:
+        p = self.logged_mpoi if which == "logged" else self.mpoi
+        ok = (self.logged_reason if which == "logged" else self.reason) is None
+        if p is None or self.truth is None or not ok:
+            return None
+        return 1000.0 * math.dist(p, self.truth)
+
+
+def _matrix(tr: Any) -> np.ndarray:
+    """4×4 of a foxglove FrameTransform (translation, unit quaternion x, y, z, w)."""
+    q = np.array([tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w], float)
+    n = np.linalg.norm(q)
+    if not (np.all(np.isfinite(q)) and n > 0):
+        raise ValueError(f"transform {tr.parent_frame_id} → {tr.child_frame_id}: no rotation")
+    x, y, z, w = q / n
+    T = np.eye(4)
+    T[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    T[:3, 3] = [tr.translation.x, tr.translation.y, tr.translation.z]
+    return T
+
+
+def camera_pose(tree: dict[str, tuple[str, np.ndarray]]) -> np.ndarray:
+    """T_field_camera from {child: (parent, T_parent_child)}; raises ValueError if no chain."""
+    T, frame, seen = np.eye(4), CAMERA, set()
+    while frame != FIELD:
+        if frame in seen or frame not in tree:
+            raise ValueError(f"no transform chain from {FIELD} to {CAMERA} (stops at {frame!r})")
+        seen.add(frame)
+        parent, Tpc = tree[frame]
+        T = Tpc @ T
+        frame = parent
+    return T
+
+
+def _camera(cal: Any) -> PinholeCamera:
+    K = np.asarray(cal.K, float).reshape(3, 3)
+    D = np.asarray(cal.D, float)
+    if len(D) == 5 and D[4] == 0.0:
+        D = D[:4]  # (the log pads 4 coefficients with k3 = 0; the same lens)
+    if not D.any():
+        D = np.zeros(0)
+    return PinholeCamera(int(cal.width), int(cal.height), K, D)
+
+
+def replay(path: Path, progress: bool = True) -> tuple[list[Replayed], ReadReport]:
+    report = ReadReport()
+    topics = {TOPICS[k] for k in ("tf", "image", "calibration", "plan", "regions", "detection", "truth_mpoi")}
+    tree: dict[str, tuple[str, np.ndarray]] = {}
+    cal = None
+    trois: dict[str, tuple[float, float, float]] = {}
+    truth: dict[str, tuple[float, float]] = {}
+    image: bytes | None = None
+    out: list[Replayed] = []
+    for m in iter_run(path, topics, report):
+        msg = m.data
+        if m.topic == TOPICS["tf"]:
+            try:
+                tree = {t.child_frame_id: (t.parent_frame_id, _matrix(t)) for t in msg.transforms}
+            except ValueError:
+                tree = {}
+        elif m.topic == TOPICS["calibration"]:
+            cal = msg
+        elif m.topic in (TOPICS["plan"], TOPICS["regions"]):
+            if msg.HasField("troi"):
+                trois[msg.target_id or msg.troi.id] = (msg.troi.x, msg.troi.y, msg.troi.r)
+        elif m.topic == TOPICS["truth_mpoi"]:
+            truth[msg.target_id] = (msg.mpoi.x, msg.mpoi.y)
+        elif m.topic == TOPICS["image"]:
+            image = bytes(msg.data)
+        elif m.topic == TOPICS["detection"] and msg.reason != "fault_injected":
+            r = Replayed(
+                msg.target_id, m.log_time,
+                (msg.pixel.x, msg.pixel.y) if msg.HasField("pixel") else None,
+                msg.reason or None,
+                (msg.mpoi_field.x, msg.mpoi_field.y) if msg.HasField("mpoi_field") else None,
+            )
+            _replay_one(r, msg, image, cal, tree, trois)
+            out.append(r)
+            if progress:
+                print(_line(r), flush=True)
+    for r in out:
+        r.truth = truth.get(r.target_id)
+    return out, report
+
+
+def _replay_one(r: Replayed, msg: Any, image: bytes | None, cal: Any, tree: dict, trois: dict) -> None:
+    if image is None:
+        r.error = "no image stored before it"
+        return
+    if cal is None or r.target_id not in trois:
+        r.error = "no camera calibration" if cal is None else "its TROI is not in the log"
+        return
+    img = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        r.error = "its image does not decode"
+        return
+    try:
+        cam = _camera(cal)
+        T = camera_pose(tree)
+        x, y, rad = trois[r.target_id]
+        roi = roi_for(cam, T, (x, y), rad)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        r.error = f"cannot rebuild its ROI: {e}"
+        return
+    logged_rim = np.array([(p.x, p.y) for p in getattr(msg, "roi_rim", ())], float)
+    if len(logged_rim) >= 3:
+        rim = roi.rim(len(logged_rim))
+        r.rim_px = float(np.max(np.linalg.norm(rim - logged_rim, axis=1)))
+        if not r.rim_px <= RIM_TOL_PX:
+            r.error = f"the rebuilt ROI is {r.rim_px:.1f} px off the logged one"
+            return
+    det = detect_centre(img, roi)
+    r.pixel = None if det.pixel is None else (float(det.pixel[0]), float(det.pixel[1]))
+    r.reason, r.confidence = det.reason, float(det.confidence)
+    if r.pixel is not None and r.reason is None:
+        g = cam.pixel_to_ground(T, np.array([r.pixel]))[0]
+        r.mpoi = (float(g[0]), float(g[1])) if np.all(np.isfinite(g)) else None
+    if r.pixel is not None and r.logged_pixel is not None:
+        r.moved_px = math.dist(r.pixel, r.logged_pixel)
+
+
+def _answer(pixel, reason) -> str:
+    if pixel is not None and reason is None:
+        return f"({pixel[0]:.1f}, {pixel[1]:.1f})"
+    return reason or "none"
+
+
+def _line(r: Replayed) -> str:
+    if r.error is not None:
+        return f"{r.target_id}: not replayed: {r.error}"
+    moved = f", moved {r.moved_px:.1f} px" if r.moved_px is not None else ""
+    return f"{r.target_id}: logged {_answer(r.logged_pixel, r.logged_reason)}, now {_answer(r.pixel, r.reason)}{moved}"
+
+
+def summary(rows: list[Replayed]) -> dict[str, Any]:
+    done = [r for r in rows if r.error is None]
+    found = lambda p, why: p is not None and why is None  # noqa: E731
+    s: dict[str, Any] = {
+        "detections": len(rows),
+        "replayed": len(done),
+        "not_replayed": len(rows) - len(done),
+        "found_logged": sum(found(r.logged_pixel, r.logged_reason) for r in done),
+        "found_now": sum(found(r.pixel, r.reason) for r in done),
+        "moved_over_1px": sum(r.moved_px is not None and r.moved_px > 1.0 for r in done),
+        "max_rim_px": max((r.rim_px for r in done if r.rim_px is not None), default=None),
+    }
+    for which in ("logged", "now"):
+        e = [x for r in done if (x := r.err_mm(which)) is not None]
+        s[f"error_mm_{which}"] = {"n": len(e), "median": float(np.median(e)) if e else None,
+                                  "wrong": sum(x > WRONG_MM for x in e)}
+    return s
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="capm-field detect-replay",
+                                 description="Run a run log's images through today's detector and compare with the logged answers.")
+    ap.add_argument("run", metavar="RUN.mcap", help="a run log (or its run directory)")
+    ap.add_argument("--json", metavar="FILE", help="write every detection and the summary to FILE")
+    ap.add_argument("--quiet", action="store_true", help="only the summary")
+    try:
+        a = ap.parse_args(argv)
+    except SystemExit as e:
+        return 0 if e.code == 0 else 2
+    check_output(a.json, "--json")
+    path = Path(a.run)
+    if path.is_dir():
+        path = path / "run.mcap"
+    rows, report = replay(path, progress=not a.quiet)
+    if not rows:
+        raise UserError(f"{path}: no detections to replay (only fault-injected ones, or none)")
+    if all(r.error == "no image stored before it" for r in rows):
+        raise UserError(f"{path}: the run stored no images (output.images: false)")
+    if all(r.error is not None for r in rows):
+        raise UserError(f"{path}: none of its {len(rows)} detections could be replayed ({rows[0].target_id}: {rows[0].error})")
+    s = summary(rows)
+    print(f"{s['replayed']} of {s['detections']} detections replayed: found {s['found_logged']} logged, {s['found_now']} now; "
+          f"{s['moved_over_1px']} answers moved > 1 px")
+    for which in ("logged", "now"):
+        e = s[f"error_mm_{which}"]
+        if e["n"]:
+            print(f"  against the bench truth, {which:<6}: median {e['median']:.1f} mm, {e['wrong']} of {e['n']} over {WRONG_MM:.0f} mm")
+    if report.damaged:
+        print(f"  note: {report.damage_note()}")
+    if a.json:
+        doc = {"run": str(path), "summary": s, "detections": [r.__dict__ for r in rows]}
+        write_output(a.json, json.dumps(doc, indent=2), "--json")
+    return 0

@@ -1,0 +1,141 @@
+"""`capm-field detect-replay`: a run log's images through the detector again (mission/detect_replay.py),
+and `output.image_format: png`, which makes that replay exact.
+
+Real bench missions (`capm-field run`, in a subprocess as a user runs it), real MCAP files; the replay
+in-process so that an uncaught exception fails the test itself.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capm_field import cli
+from mission import detect_replay
+from mission.executive import ROI_MARGIN
+
+CLI = [sys.executable, "-m", "capm_field.cli"]
+
+MISSION = """\
+field:
+  trois:
+    - {{id: A, x: 1.0, y: 0.3, r: 0.22}}
+    - {{id: B, x: 2.0, y: 0.8, r: 0.25}}
+    - {{id: C, x: 1.2, y: 1.6, r: 0.24}}
+start: {{x: 0.0, y: 0.0, yaw: 0.0}}
+{robot}drivers: {{kind: bench, seed: 3}}
+output: {{dir: {out}, {output}}}
+"""
+LENS = "robot: {camera: {distortion: [-0.25, 0.08, 0.0005, -0.0008, -0.01]}}\n"
+
+
+def _run(d: Path, output: str, robot: str = "") -> Path:
+    m = d / "m.yaml"
+    m.write_text(MISSION.format(out=d / "out", output=output, robot=robot))
+    r = subprocess.run(CLI + ["run", str(m), "--quiet"], capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stderr
+    return d / "out"
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[str, Path]:
+    """The same bench mission logged as PNG, as JPEG, and as PNG through a distorting lens."""
+    return {
+        "png": _run(tmp_path_factory.mktemp("png"), "image_format: png"),
+        "jpeg": _run(tmp_path_factory.mktemp("jpeg"), "image_format: jpeg"),
+        "lens": _run(tmp_path_factory.mktemp("lens"), "image_format: png", LENS),
+    }
+
+
+def _replay(capsys, run: Path, tmp_path: Path, *extra: str) -> tuple[int, dict | None, str, str]:
+    out_json = tmp_path / "r.json"
+    rc = cli.main(["detect-replay", str(run), "--json", str(out_json), *extra])
+    out, err = capsys.readouterr()
+    return rc, (json.loads(out_json.read_text()) if out_json.exists() else None), out, err
+
+
+@pytest.mark.parametrize("kind", ["png", "lens"])
+def test_a_lossless_log_replays_every_answer_exactly(runs, capsys, tmp_path, kind):
+    """Rebuilt from /tf, /camera/calibration and the TROI, the ROI is the one the executive searched
+    (its rim on the logged one), and on the frame the detector saw the answers are the run's."""
+    rc, doc, out, _ = _replay(capsys, runs[kind], tmp_path)
+    assert rc == 0
+    s, rows = doc["summary"], doc["detections"]
+    assert s["detections"] >= 3 and s["replayed"] == s["detections"]
+    assert s["max_rim_px"] < 1e-6
+    for r in rows:
+        assert r["error"] is None and r["reason"] == r["logged_reason"]
+        if r["logged_pixel"] is not None:
+            assert r["moved_px"] < 1e-6
+    assert s["found_now"] == s["found_logged"] >= 3
+    now, logged = s["error_mm_now"], s["error_mm_logged"]
+    assert now["n"] == logged["n"] >= 3 and now["wrong"] == logged["wrong"]  # the bench truth is read
+    assert now["median"] == pytest.approx(logged["median"], abs=1e-6)  # (the pose from /tf's quaternions)
+    assert f"{s['replayed']} of {s['detections']} detections replayed" in out
+
+
+def test_a_jpeg_log_replays_on_the_same_roi(runs, capsys, tmp_path):
+    rc, doc, _, _ = _replay(capsys, runs["jpeg"], tmp_path, "--quiet")
+    assert rc == 0
+    s = doc["summary"]
+    assert s["replayed"] == s["detections"] >= 3 and s["max_rim_px"] < 1e-6
+    # (the answers themselves may move with the compression, by tens of px: that is what png is for)
+    assert all(r["error"] is None and r["confidence"] >= 0 for r in doc["detections"])
+
+
+def test_png_images_are_lossless_and_read_by_rerun(runs, tmp_path):
+    import cv2
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from rerun_recording import rrd_contents
+
+    with open(runs["png"] / "run.mcap", "rb") as f:
+        msgs = [m for _, _, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=["/camera/image"])]
+    assert msgs and all(m.format == "png" for m in msgs)
+    img = cv2.imdecode(np.frombuffer(msgs[0].data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert img.shape == (720, 1280, 3)
+    rrd = tmp_path / "r.rrd"
+    assert cli.main(["review", str(runs["png"] / "run.mcap"), "--rrd", str(rrd)]) == 0
+    assert "EncodedImage:blob" in rrd_contents(rrd)["/camera/image"]
+
+
+def test_a_roi_rebuilt_another_way_is_refused_not_compared(runs, capsys, tmp_path, monkeypatch):
+    """The rim check is what makes a replay's comparison mean anything: with another margin the
+    rebuilt ROI misses the logged rim and nothing is compared."""
+    real = detect_replay.roi_for
+    monkeypatch.setattr(detect_replay, "roi_for", lambda cam, T, xy, r: real(cam, T, xy, r * 1.4 / ROI_MARGIN))
+    rc, doc, _, err = _replay(capsys, runs["png"], tmp_path)
+    assert rc == 2 and doc is None
+    assert "none of its" in err and "px off the logged one" in err
+
+
+def test_a_log_without_images_is_one_line(tmp_path, capsys):
+    run = _run(tmp_path, "images: false")
+    rc, doc, _, err = _replay(capsys, run, tmp_path)
+    assert rc == 2 and doc is None and "stored no images" in err and len(err.strip().splitlines()) == 1
+
+
+def test_image_format_is_checked_with_the_mission(tmp_path, capsys):
+    m = tmp_path / "m.yaml"
+    m.write_text(MISSION.format(out=tmp_path / "out", output="image_format: gif", robot=""))
+    assert cli.main(["validate", str(m)]) == 2
+    assert "output.image_format" in capsys.readouterr().err
+
+
+def test_camera_pose_needs_a_chain_from_field_to_camera():
+    eye = np.eye(4)
+    t = eye.copy()
+    t[0, 3] = 1.0
+    T = detect_replay.camera_pose({"camera": ("body", t), "body": ("field", t)})
+    assert np.allclose(T[:3, 3], [2.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="stops at 'body'"):
+        detect_replay.camera_pose({"camera": ("body", eye)})
+    with pytest.raises(ValueError, match="no transform chain"):
+        detect_replay.camera_pose({"camera": ("body", eye), "body": ("camera", eye)})  # a loop
