@@ -62,13 +62,16 @@ def _case_image(seed: int, i: int, bare: bool, cache: Path):
 
 
 def evaluate(args) -> dict | None:
-    seed, i, bare, cache, out, save, alt = args
+    seed, i, bare, cache, out, save, alt, jpeg, j444 = args
     cv2.setNumThreads(1)
     if alt and DETECT is _det.detect_centre:
         _load_detector(alt)
     case, img = _case_image(seed, i, bare, cache)
     if case is None:
         return None
+    if jpeg:  # the frame as a camera streaming JPEG (or a run log, docs/log.md) would deliver it
+        params = [cv2.IMWRITE_JPEG_QUALITY, jpeg] + ([cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444] if j444 else [])
+        img = cv2.imdecode(cv2.imencode(".jpg", img, params)[1], cv2.IMREAD_COLOR)
     roi = roi_from_troi(CAM, case.T, case.troi_centre, case.troi_radius)
     dbg: dict = {}
     t0 = time.perf_counter()
@@ -189,7 +192,7 @@ def _run_seed(a, seed: int, out: Path) -> list[dict]:
     bare_idx = set(np.random.default_rng(seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
     idx = range(a.scenes) if a.only is None else [int(s) for s in a.only.split(",")]
     save = None if a.save == "none" else a.save
-    jobs = [(seed, i, i in bare_idx, cache, out, save, a.detector) for i in idx]
+    jobs = [(seed, i, i in bare_idx, cache, out, save, a.detector, a.jpeg, a.jpeg_444) for i in idx]
     if a.jobs > 1:
         with ProcessPoolExecutor(a.jobs) as ex:
             rows = [r for r in ex.map(evaluate, jobs, chunksize=4) if r is not None]
@@ -238,7 +241,11 @@ def main(argv=None) -> int:
     ap.add_argument("--save", choices=["fail", "all", "none"], default="fail")
     ap.add_argument("--only", default=None, help="comma-separated case indices")
     ap.add_argument("--detector", default=None, help="path of another detector.py to evaluate instead (A/B)")
+    ap.add_argument("--jpeg", type=int, default=0, metavar="Q", help="detect on each frame JPEG-encoded at quality Q (1-100; 0: the lossless render)")
+    ap.add_argument("--jpeg-444", action="store_true", help="with --jpeg: full-resolution colour (OpenCV's default halves it, 4:2:0)")
     a = ap.parse_args(argv)
+    if not 0 <= a.jpeg <= 100:
+        ap.error("--jpeg: a quality in 1..100, or 0 for none")
     if a.seeds is None:
         rows = _run_seed(a, a.seed, Path(a.out))
         _summary(rows)
