@@ -104,8 +104,10 @@ def image_files(paths: list[str]) -> list[tuple[str, Path | None, str | None]]:
             if not found:
                 out.append((p, None, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))}) in this directory"))
             out += [(str(q), q, None) for q in found]
-        elif path.exists():
+        elif path.is_file():
             out.append((p, path, None))
+        elif path.exists():  # a FIFO or a device: reading it may never end
+            out.append((p, None, "not a regular file"))
         else:
             out.append((p, None, "no such file or directory"))
     return out
@@ -113,6 +115,8 @@ def image_files(paths: list[str]) -> list[tuple[str, Path | None, str | None]]:
 
 def read_image(path: Path) -> np.ndarray:
     """8-bit BGR image from a file (EXIF orientation applied); raises ValueError with the reason."""
+    if path.exists() and not path.is_file():
+        raise ValueError("not a regular file")  # a FIFO or a device: reading it may never end
     try:
         size = path.stat().st_size
         if size > MAX_FILE_BYTES:

@@ -161,8 +161,8 @@ def _replay_one(r: Replayed, msg: Any, image: bytes | None, cal: Any, tree: dict
         T = camera_pose(tree)
         x, y, rad = trois[r.target_id]
         roi = roi_for(cam, T, (x, y), rad)
-    except (ValueError, np.linalg.LinAlgError) as e:
-        r.error = f"cannot rebuild its ROI: {e}"
+    except Exception as e:  # noqa: BLE001 - a foreign or damaged log's numbers (NaN, a singular K)
+        r.error = f"cannot rebuild its ROI: {type(e).__name__}: {' '.join(str(e).split())[:120]}"
         return
     logged_rim = np.array([(p.x, p.y) for p in getattr(msg, "roi_rim", ())], float)
     if len(logged_rim) >= 3:
@@ -171,7 +171,7 @@ def _replay_one(r: Replayed, msg: Any, image: bytes | None, cal: Any, tree: dict
         if not r.rim_px <= RIM_TOL_PX:
             r.error = f"the rebuilt ROI is {r.rim_px:.1f} px off the logged one"
             return
-    det = detect_centre(img, roi)
+    det = detect_centre(img, roi)  # (never raises: a bad frame is a reason)
     r.pixel = None if det.pixel is None else (float(det.pixel[0]), float(det.pixel[1]))
     r.reason, r.confidence = det.reason, float(det.confidence)
     if r.pixel is not None and r.reason is None:

@@ -9,6 +9,7 @@ every file, bad ones included, and loses nothing when interrupted.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import struct
 from pathlib import Path
@@ -182,6 +183,15 @@ def test_annotated_copies_mark_the_centre_and_never_overwrite_each_other(tmp_pat
 def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, expect):
     rc, out, err = run(capsys, str(FIX / "seedling.jpg"), *args)
     assert rc == 2 and expect in err and len(err.strip().splitlines()) == 1 and out == ""
+
+
+def test_a_fifo_is_refused_not_read_forever(tmp_path, capsys):
+    fifo = tmp_path / "camera.jpg"
+    os.mkfifo(fifo)
+    rc, out, _ = run(capsys, str(fifo))
+    assert rc == 2 and "not a regular file" in out
+    rc, _, err = run(capsys, str(FIX / "seedling.jpg"), "--roi-mask", str(fifo))
+    assert rc == 2 and "not a regular file" in err
 
 
 def test_annotate_onto_a_file_is_refused_before_any_work(tmp_path, capsys):
