@@ -225,7 +225,7 @@ class OutputSpec(_Strict):
     dir: str = "runs/latest"
     images: bool = True
     image_format: Literal["jpeg", "png"] = Field(
-        "jpeg", description="jpeg (quality 85, ~10× smaller) or png (lossless: `capm-field detect-replay` then sees "
+        "jpeg", description="jpeg (quality 85: ~155 kB a 1280×720 frame) or png (~1.2 MB; lossless: `capm-field detect-replay` then sees "
         "the very frames the detector saw; on JPEG its answers move with the compression)")
 
     @field_validator("dir")

@@ -368,7 +368,7 @@ class RunLog:
             self.event(t_ns, "debug", f"image target={target_id} {w}x{h} (not stored: output.images is false)", name="camera")
             return
         t0 = time.perf_counter()
-        if self.image_format == "png":  # lossless; level 1: fast, ~2× larger than level 9
+        if self.image_format == "png":  # lossless; level 1 (a bench frame: 1.2 MB in ~70 ms; level 9 saves 12 % in 10× the time)
             ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), [cv2.IMWRITE_PNG_COMPRESSION, 1])
         else:
             ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
