@@ -23,13 +23,18 @@ def names(text: str, allowed: Iterable[str], flag: str) -> tuple[str, ...]:
 MAX_LIST_VALUE = 1e6  # no length (m) or density (/m²) of a bench comes near; 1e300 overflowed a planner
 
 
-def positive_floats(text: str, flag: str) -> tuple[float, ...]:
-    """'2.75,3.25' → (2.75, 3.25), all in (0, MAX_LIST_VALUE] (float() takes 'nan' and 'inf': a
-    nan passes `v <= 0` and reached the benches as an AssertionError or an OverflowError)."""
+def floats(text: str, flag: str) -> tuple[float, ...]:
+    """'2.75,-3' → (2.75, -3.0); the caller checks the range (float() also takes 'nan' and 'inf')."""
     try:
-        out = tuple(float(x) for x in text.split(","))
+        return tuple(float(x) for x in text.split(","))
     except ValueError as e:
         raise UserError(f"{flag}: not a list of numbers: {text[:80]!r}") from e
+
+
+def positive_floats(text: str, flag: str) -> tuple[float, ...]:
+    """'2.75,3.25' → (2.75, 3.25), all in (0, MAX_LIST_VALUE] (a nan passes `v <= 0` and reached
+    the benches as an AssertionError or an OverflowError)."""
+    out = floats(text, flag)
     if not all(0 < v <= MAX_LIST_VALUE for v in out):  # false for nan too
         raise UserError(f"{flag} must be positive finite numbers ≤ {MAX_LIST_VALUE:g}, got {text[:80]}")
     return out

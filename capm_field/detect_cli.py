@@ -26,6 +26,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from . import cli_args
 from .detector import Detection, Roi, detect_centre
 from .errors import UserError, check_output, shown, write_output
 
@@ -62,11 +63,8 @@ class Result:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
 
-def _numbers(text: str, flag: str) -> list[float]:
-    try:
-        vals = [float(x) for x in text.split(",")]
-    except ValueError:
-        raise UserError(f"{flag}: not a list of numbers: {shown(text)}") from None
+def _numbers(text: str, flag: str) -> tuple[float, ...]:
+    vals = cli_args.floats(text, flag)
     if not all(math.isfinite(v) and abs(v) <= MAX_COORD for v in vals):
         raise UserError(f"{flag}: numbers must be finite and within ±{MAX_COORD:g} px, got {shown(text)}")
     return vals

@@ -9,9 +9,9 @@ geometry cannot be rebuilt says so instead of comparing answers on another regio
 
 Per detection: the logged answer, the replayed one and how far it moved (px); on a bench run,
 both answers' ground errors against `/truth/mpoi` and the count over the wrong-centre line
-(`sim_bench.perception_bench.WRONG_MM`). The logged image is JPEG, not the frame the detector
-saw in the run: answers move with sub-level changes of the image (docs/perception.md §4), so
-the same detector need not give the same answer on every replayed frame.
+(`sim_bench.perception_bench.WRONG_MM`). A JPEG log (the default) holds not the frame the
+detector saw but its compressed copy, and answers move with sub-level changes of the image
+(docs/perception.md §4); a log with `output.image_format: png` replays exactly.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from capm_field.camera import PinholeCamera
 from capm_field.detector import detect_centre
@@ -34,7 +35,6 @@ from .executive import roi_for
 from .runlog import TOPICS
 from .runlog_read import ReadReport, iter_run
 
-WRONG_MM = 30.0  # the bench's wrong-centre line (sim_bench.perception_bench.WRONG_MM; mission does not import sim_bench)
 RIM_TOL_PX = 0.5  # rebuilt ROI rim against the logged one: more than this and the geometry is not the run's
 CAMERA = "camera"
 FIELD = "field"
@@ -67,16 +67,12 @@ class Replayed:
 
 
 def _matrix(tr: Any) -> np.ndarray:
-    """4×4 of a foxglove FrameTransform (translation, unit quaternion x, y, z, w)."""
-    q = np.array([tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w], float)
-    n = np.linalg.norm(q)
-    if not (np.all(np.isfinite(q)) and n > 0):
+    """4×4 of a foxglove FrameTransform (translation, quaternion x, y, z, w)."""
+    q = [tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w]
+    if not np.all(np.isfinite(q)):
         raise ValueError(f"transform {tr.parent_frame_id} → {tr.child_frame_id}: no rotation")
-    x, y, z, w = q / n
     T = np.eye(4)
-    T[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    T[:3, :3] = Rotation.from_quat(q).as_matrix()  # (normalises; a zero quaternion is a ValueError)
     T[:3, 3] = [tr.translation.x, tr.translation.y, tr.translation.z]
     return T
 
@@ -195,6 +191,8 @@ def _line(r: Replayed) -> str:
 
 
 def summary(rows: list[Replayed]) -> dict[str, Any]:
+    from sim_bench.perception_bench import WRONG_MM  # the bench's wrong-centre line (imported when run, as run_cli does)
+
     done = [r for r in rows if r.error is None]
     found = lambda p, why: p is not None and why is None  # noqa: E731
     s: dict[str, Any] = {
@@ -205,6 +203,7 @@ def summary(rows: list[Replayed]) -> dict[str, Any]:
         "found_now": sum(found(r.pixel, r.reason) for r in done),
         "moved_over_1px": sum(r.moved_px is not None and r.moved_px > 1.0 for r in done),
         "max_rim_px": max((r.rim_px for r in done if r.rim_px is not None), default=None),
+        "wrong_mm": WRONG_MM,
     }
     for which in ("logged", "now"):
         e = [x for r in done if (x := r.err_mm(which)) is not None]
@@ -240,7 +239,7 @@ def main(argv: list[str]) -> int:
     for which in ("logged", "now"):
         e = s[f"error_mm_{which}"]
         if e["n"]:
-            print(f"  against the bench truth, {which:<6}: median {e['median']:.1f} mm, {e['wrong']} of {e['n']} over {WRONG_MM:.0f} mm")
+            print(f"  against the bench truth, {which:<6}: median {e['median']:.1f} mm, {e['wrong']} of {e['n']} over {s['wrong_mm']:.0f} mm")
     if report.damaged:
         print(f"  note: {report.damage_note()}")
     if a.json:
