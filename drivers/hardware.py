@@ -37,7 +37,7 @@ def open_hardware_drivers(mission, robot: RobotModel, mission_dir: str | Path | 
         except Exception as e:  # zenoh refusing its config or endpoints: a driver that cannot open
             raise DriverError(f"body link: cannot open the zenoh session: {' '.join(str(e).split())[:300]}") from e
         opened.append(body)
-        camera = OpenCVCamera(hw.camera.source, mission.robot.camera)
+        camera = OpenCVCamera(hw.camera.source, mission.robot.camera, fourcc=hw.camera.fourcc)
         opened.append(camera)
     except BaseException:
         for d in reversed(opened):

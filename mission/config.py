@@ -186,6 +186,15 @@ class CanSpec(_Strict):
 
 class CameraSpec(_Strict):
     source: str | int = 0
+    fourcc: str | None = Field(None, description="pixel format to ask the device for, e.g. YUYV (raw; the detector "
+                               "is worse on MJPG frames, docs/perception.md §3); default: the device's own")
+
+    @field_validator("fourcc")
+    @classmethod
+    def _fourcc(cls, v: str | None) -> str | None:
+        if v is not None and not (len(v) == 4 and v.isascii() and v.isprintable()):
+            raise ValueError(f"a FOURCC is four printable ASCII characters, e.g. YUYV or MJPG (got {shown(v)})")
+        return v
 
 
 class HardwareDrivers(_Tagged):
