@@ -143,8 +143,8 @@ class OpenCVCamera(Camera):
                 time.sleep(0.02)
                 continue
             fails = 0
-            if self._stream_size is None and not self._check_size(img):
-                return
+            if (img.shape[1], img.shape[0]) != self._stream_size and not self._check_size(img):
+                return  # (checked again whenever the stream's size changes)
             img = self._to_bgr(img)
             with self._cond:
                 self._frame, self._stamp = img, time.monotonic_ns()
@@ -152,8 +152,8 @@ class OpenCVCamera(Camera):
                 self._cond.notify_all()
 
     def _check_size(self, img: np.ndarray) -> bool:
-        """First frame: its size against the configured one. False (and the error set) if the
-        aspect ratio differs: the calibrated intrinsics would not apply to a stretched image."""
+        """A frame of a new stream size against the configured size. False (and the error set) if
+        the aspect ratio differs: the calibrated intrinsics would not apply to a stretched image."""
         h, w = img.shape[:2]
         cw, ch = self._cfg.width, self._cfg.height
         self._stream_size = (w, h)
