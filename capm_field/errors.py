@@ -2,6 +2,7 @@
 
 import math
 import os
+import reprlib
 import sys
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,12 @@ class UserError(Exception):
     """A bad input (file, value, option) — reported as one clear line naming the value, exit 2."""
 
 
+_BOUNDED = reprlib.Repr()  # (keyword arguments only from Python 3.12)
+_BOUNDED.maxlevel = 3
+_BOUNDED.maxlist = _BOUNDED.maxtuple = _BOUNDED.maxdict = _BOUNDED.maxset = _BOUNDED.maxfrozenset = 6
+_BOUNDED.maxstring = _BOUNDED.maxlong = _BOUNDED.maxother = SHOWN
+
+
 def shown(value: Any, limit: int = SHOWN) -> str:
     """A bad value for an error line: its repr cut to about `limit` characters (a 200 kB value was
     echoed whole). An integer of over 1 000 bits is described by its size: a CBOR or JSON bignum of
@@ -22,7 +29,9 @@ def shown(value: Any, limit: int = SHOWN) -> str:
     if isinstance(value, str) and len(value) > limit:
         return f"{value[:limit]!r}…"
     try:
-        text = repr(value)
+        # containers through reprlib's bounded walk: a decoded value may share parts (2^n leaves
+        # in a few hundred bytes), and a full repr of it would never end
+        text = _BOUNDED.repr(value) if isinstance(value, (list, tuple, dict, set, frozenset)) else repr(value)
     except Exception:  # noqa: BLE001 - any value a decoder can make must be describable
         return f"<a {type(value).__name__}>"
     return text if len(text) <= limit + 2 else text[:limit] + "…"

@@ -151,6 +151,34 @@ def encode(kind: str, msg: Mapping[str, Any]) -> bytes:
     return cbor2.dumps(out)
 
 
+class _RefusedTag(Exception):
+    pass
+
+
+def _refuse(tag: int, what: str):
+    def refuse(*_decoder_and_tag) -> None:  # (cbor2 passes the decoder, and the tag since 6)
+        raise _RefusedTag(f"CBOR tag {tag} ({what}) is not accepted")
+
+    return refuse
+
+
+# Shared references (tags 28/29) let a few hundred bytes stand for a structure of 2^depth parts
+# (each level two references to the one below), or a cycle: anything that then walks or prints the
+# message (a repr in an error line) would take the process, its state loop and its E-stop
+# keep-alive with it. No message of this protocol needs them (docs/protocols/body-zenoh.md).
+_REFUSED_TAGS = {28: _refuse(28, "shareable"), 29: _refuse(29, "shared reference")}
+
+
+def _decode_failure(e: Exception) -> str:
+    """What a decoder failure says about the payload. (A function, not locals of `decode`: an
+    exception kept in a local would tie `decode`'s frame, and through it the caller's zenoh query,
+    into a reference cycle, and the query would stay open until the garbage collector ran.)"""
+    if "duplicate map key" in str(e).lower():
+        return "a map with a key twice"
+    refused = e.__cause__ or e.__context__  # (cbor2 wraps a semantic decoder's exception)
+    return str(refused) if isinstance(refused, _RefusedTag) else f"not CBOR ({type(e).__name__})"
+
+
 def decode(kind: str, raw: bytes | None) -> dict[str, Any]:
     """Decode and validate one message of `kind`; raises ProtocolError('malformed'|'bad_version')."""
     if raw is None or len(raw) == 0:
@@ -161,10 +189,9 @@ def decode(kind: str, raw: bytes | None) -> dict[str, Any]:
         buf = io.BytesIO(raw)
         # a map with a key twice is not valid CBOR (RFC 8949 §5.6): one decoder would keep the
         # first, another the last (an engage read as a release), so it is malformed here
-        msg = cbor2.CBORDecoder(buf, allow_duplicate_keys=False).decode()
+        msg = cbor2.CBORDecoder(buf, allow_duplicate_keys=False, semantic_decoders=_REFUSED_TAGS).decode()
     except Exception as e:  # noqa: BLE001 - any decoder failure is a malformed payload
-        what = "a map with a key twice" if "duplicate map key" in str(e).lower() else f"not CBOR ({type(e).__name__})"
-        raise ProtocolError("malformed", what) from None
+        raise ProtocolError("malformed", _decode_failure(e)) from None
     if buf.tell() != len(raw):  # one map per message: bytes after it are a framing error (two messages, junk)
         raise ProtocolError("malformed", f"{len(raw) - buf.tell()} bytes after the CBOR map")
     if not isinstance(msg, dict):

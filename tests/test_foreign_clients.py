@@ -172,6 +172,59 @@ def test_every_refusal_is_one_valid_error_reply_whatever_the_peer_sent(foreign_s
     assert bench.server.stats.get("internal", 0) == 0
 
 
+def _shared_ref_bomb(depth: int) -> bytes:
+    """A Stop whose `client` is a list of two references to the list below it, `depth` levels
+    deep (CBOR tags 28/29, RFC 8949's shareable / shared reference): ~7 bytes a level stand for
+    2^depth leaves. Hand-encoded, as a hostile peer would (cbor2 makes no such map itself)."""
+
+    def head(major: int, n: int) -> bytes:
+        return bytes([major << 5 | n]) if n < 24 else bytes([major << 5 | 24, n]) if n < 256 else bytes([major << 5 | 25]) + n.to_bytes(2, "big")
+
+    def text(x: str) -> bytes:
+        return head(3, len(x)) + x.encode()
+
+    inner = head(6, 28) + text("x")
+    for d in range(depth - 1, -1, -1):
+        inner = head(6, 28) + head(4, 2) + inner + head(6, 29) + head(0, d + 1)
+    return head(5, 2) + text("v") + head(0, 1) + text("client") + inner
+
+
+def test_shared_references_are_refused_at_decode():
+    """Depth 18 decodes (without the refusal) to 262 144 leaves, and its validation error would
+    quote it; the refusal names the tag instead. A self-referencing list (a cycle) too."""
+    from drivers.body_protocol import ProtocolError, decode
+
+    with pytest.raises(ProtocolError, match="tag 28"):
+        decode("stop", _shared_ref_bomb(18))
+    cycle = bytes([0xA2, 0x61]) + b"v" + bytes([0x01, 0x66]) + b"client" + bytes([0xD8, 0x1C, 0x81, 0xD8, 0x1D, 0x00])
+    with pytest.raises(ProtocolError, match="tag 2[89]"):
+        decode("stop", cycle)
+
+
+def test_a_shared_reference_bomb_is_one_malformed_reply_and_the_robot_side_keeps_serving(foreign_session):
+    """A ~300-byte Stop standing for 2^40 leaves (found by a foreign-client sweep): quoting it in
+    the error line took the whole robot side, its state loop and E-stop keep-alive with it, while
+    the lease holder's body walked on. Now: one `malformed` reply, and states keep coming."""
+    from drivers.body_protocol import decode
+
+    bench, s, lease = foreign_session
+    payload = _shared_ref_bomb(40)
+    assert len(payload) < 400
+    for key in (f"{P}/cmd/stop", f"{P}/estop/checkin", f"{P}/lease/acquire"):
+        replies = list(s.get(key, payload=payload, timeout=2.0))
+        assert len(replies) == 1 and replies[0].err is not None, (key, replies)
+        err = decode("error", replies[0].err.payload.to_bytes())
+        assert err["error"] == "malformed" and "tag 28" in err["detail"], err
+    seen: list = []
+    sub = s.declare_subscriber(f"{P}/state", lambda smp: seen.append(smp))
+    try:
+        assert wait_for(lambda: len(seen) >= 5, timeout=3.0)
+    finally:
+        sub.undeclare()
+    ok, _ = ask(s, f"{P}/estop/checkin", cbor2.dumps({"v": 1, "client": "fc", "seq": 99}))
+    assert ok
+
+
 def test_an_expired_lease_is_not_honoured_between_loop_ticks(foreign_session):
     """The lease expires `ttl_ns` after its last refresh, whenever the loop next runs: a query is
     checked against the clock itself (a Move just after expiry was acknowledged and started, and
