@@ -291,6 +291,8 @@ def load_config_file(path: str | os.PathLike):  # -> zenoh.Config
             f = (p.parent / f).resolve()
             cfg.insert_json5(key, json.dumps(str(f)))
         if not f.is_file():
+            if f.exists():  # a directory, a device, a FIFO (whose read would block)
+                raise ValueError(f"{p}: {key.replace('/', '.')} names {f}, which is not a regular file")
             raise FileNotFoundError(f"{p}: {key.replace('/', '.')} names a missing file: {f}")
         _check_pem(p, key, f)
     for side in ("listen", "connect"):  # a key that does not match its certificate fails every handshake
@@ -344,23 +346,34 @@ def _max_nesting(text: bytes) -> int:
     return deepest
 
 
+MAX_PEM_BYTES = 4 << 20  # a CA bundle (Mozilla's: ~220 kB) fits many times over
+
+
 def _check_pem(cfg_path: Path, key: str, f: Path) -> None:
     """A certificate or key file named by the config must be PEM of that kind (a text file with
     anything else in it only fails at the first TLS handshake, on the robot)."""
     if not key.startswith("transport/link/tls/"):
         return
     what = key.rsplit("/", 1)[-1].replace("_", " ")
+    size = f.stat().st_size
+    if size > MAX_PEM_BYTES:
+        raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} is {size} bytes, too large for a PEM file "
+                         f"(limit {MAX_PEM_BYTES})")
     text = f.read_bytes()
     if key.endswith("certificate"):
-        m = re.search(rb"-----BEGIN CERTIFICATE-----.+?-----END CERTIFICATE-----", text, re.S)
+        # the first block, found in linear time (a lazy regex retried from each of 20 000 BEGIN
+        # lines took minutes: a hostile file must not hang `validate` or the bridge's start)
+        begin = text.find(b"-----BEGIN CERTIFICATE-----")
+        end = text.find(b"-----END CERTIFICATE-----", begin + 28) if begin >= 0 else -1
+        block = text[begin:end + 25] if end >= 0 else None
         try:
-            ssl.PEM_cert_to_DER_cert(m.group(0).decode("ascii")) if m else None
+            ssl.PEM_cert_to_DER_cert(block.decode("ascii")) if block else None
         except (ValueError, UnicodeDecodeError):
-            m = None
-        if not m:
+            block = None
+        if not block:
             raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} is not a PEM certificate ({what})")
         try:  # PEM armour around something that is not a certificate fails every handshake
-            ssl.create_default_context(cadata=m.group(0).decode("ascii"))
+            ssl.create_default_context(cadata=block.decode("ascii"))
         except (ssl.SSLError, ValueError) as e:
             raise ValueError(f"{cfg_path}: {key.replace('/', '.')}: {f} holds no valid certificate ({what}: {e})") from None
     elif not re.search(rb"-----BEGIN [A-Z ]*PRIVATE KEY-----", text):

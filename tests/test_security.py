@@ -375,6 +375,36 @@ def test_config_files_resolve_paths_and_fail_early(pki, tmp_path):
     assert hw["config_file"] == "zenoh-client.json5" and all(e.startswith("tls/") for e in hw["connect"])
 
 
+def test_hostile_certificate_files_are_refused_quickly(pki, tmp_path):
+    """A CA file of 60 000 BEGIN lines and no END (1.7 MB): the lazy regex once retried from each
+    BEGIN took ~15 min (found by a fuzzing sweep); a 5 MB file is over the size limit; a directory
+    or device is named as such, not as missing."""
+    import os
+
+    cfg_text = (pki / "zenoh-client.json5").read_text()
+    ca = "certs/ca.pem"
+    assert ca in cfg_text
+    shutil.copytree(pki / "certs", tmp_path / "certs")
+
+    def load_with(ca_path: str):
+        (tmp_path / "c.json5").write_text(cfg_text.replace(ca, ca_path))
+        return load_config_file(tmp_path / "c.json5")
+
+    (tmp_path / "begins.pem").write_bytes(b"-----BEGIN CERTIFICATE-----\n" * 60_000)
+    with pytest.raises(ValueError, match="begins.pem is not a PEM certificate"):
+        load_with(str(tmp_path / "begins.pem"))
+    big = (pki / "certs" / "ca.pem").read_bytes()
+    (tmp_path / "big.pem").write_bytes(big + b"#" * (5 << 20))
+    with pytest.raises(ValueError, match="too large for a PEM file"):
+        load_with(str(tmp_path / "big.pem"))
+    with pytest.raises(ValueError, match="which is not a regular file"):
+        load_with(str(tmp_path / "certs"))
+    os.mkfifo(tmp_path / "fifo.pem")
+    with pytest.raises(ValueError, match="which is not a regular file"):
+        load_with(str(tmp_path / "fifo.pem"))
+    assert load_with(str(tmp_path / "certs" / "ca.pem"))  # the real one still loads
+
+
 def test_spot_bridge_refuses_an_unsecured_endpoint_before_touching_the_robot(pki, monkeypatch, capsys):
     pytest.importorskip("bosdyn.client")
     from drivers import spot_bridge
