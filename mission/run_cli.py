@@ -80,6 +80,17 @@ def _output_problem(out: Path) -> str | None:
     return None
 
 
+def _write_new(path: Path, text: str) -> None:
+    """`text` into a new file at `path`: whatever is there (a crashed run's temp file, or a link
+    planted to make the run write elsewhere) is removed first, and the file is created exclusively,
+    without following a link (a link put back in between is an error, not a write through it)."""
+    if path.is_symlink() or path.is_file():
+        path.unlink()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+
+
 def _link_warnings(mission: Mission) -> list[str]:
     """A hardware mission that would talk to the robot off this machine without TLS: allowed (a
     lab network), but docs/security.md asks for mutual TLS and the robot side refuses it unless
@@ -256,7 +267,7 @@ def _run(a: argparse.Namespace) -> int:
                     "seed": a.seed if a.seed is not None else getattr(mission.drivers, "seed", None), "images": mission.output.images})
     tmp = out / "summary.json.tmp"
     try:
-        tmp.write_text(json.dumps(summary, indent=1))
+        _write_new(tmp, json.dumps(summary, indent=1))
         os.replace(tmp, out / "summary.json")
     except OSError as e:  # (a full disk): the run is over, its summary must not be lost
         tmp.unlink(missing_ok=True)

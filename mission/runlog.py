@@ -183,8 +183,10 @@ class RunLog:
         self.n_flushes = 0
         self.call_time_s = 0.0  # wall time spent inside RunLog calls (the logging cost)
 
-        if self.path.exists() and not overwrite:
+        if (self.path.exists() or self.path.is_symlink()) and not overwrite:
             raise UserError(f"run log already exists: {self.path} (choose another --out directory)")
+        if self.path.is_symlink():  # overwrite the link, not what it points at (a planted link)
+            self.path.unlink()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         # A private context: our channels never leak into another sink (e.g. a live server).
         self._ctx = Context()

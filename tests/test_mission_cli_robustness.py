@@ -175,6 +175,31 @@ def test_run_refuses_output_names_taken_by_directories_before_starting(tmp_path,
         assert sorted(x.name for x in out.iterdir()) == [taken]  # no run.mcap: the mission never ran
 
 
+def test_run_never_writes_through_a_link_planted_in_its_output_directory(tmp_path, capsys):
+    """A link at summary.json.tmp (found by a fuzzing sweep: the summary overwrote the link's
+    target, exit 0) or at run.mcap (with --force; or dangling, which exists() does not see) is
+    replaced by the run's own file; the files the links pointed at are untouched."""
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    victim = tmp_path / "victim.txt"
+    for name, extra in (("summary.json.tmp", []), ("run.mcap", ["--force"]), ("summary.json", ["--force"])):
+        victim.write_text("victim")
+        out = tmp_path / f"o-{name}"
+        out.mkdir()
+        (out / name).symlink_to(victim)
+        rc = cli.main(["run", str(p), "--out", str(out), "--quiet"] + extra)
+        capsys.readouterr()
+        assert rc == 0 and victim.read_text() == "victim", name
+        assert not (out / "summary.json").is_symlink() and json.loads((out / "summary.json").read_text())["name"] == "t"
+        assert not (out / "run.mcap").is_symlink() and (out / "run.mcap").stat().st_size > 0
+        assert not (out / "summary.json.tmp").exists()
+    out = tmp_path / "o-dangling"
+    out.mkdir()
+    (out / "run.mcap").symlink_to(tmp_path / "elsewhere.mcap")
+    rc = cli.main(["run", str(p), "--out", str(out), "--quiet"])
+    assert rc == 2 and "run.mcap" in capsys.readouterr().err
+    assert not (tmp_path / "elsewhere.mcap").exists()
+
+
 def test_drivers_are_closed_when_the_run_log_cannot_be_created(tmp_path, monkeypatch, capsys):
     import mission.run_cli as run_cli
     import mission.runlog as runlog
