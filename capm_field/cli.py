@@ -13,7 +13,7 @@ import importlib
 import os
 import sys
 
-from .errors import UserError, shown
+from .errors import UserError, shown, terminal_safe
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("mission.run_cli", "run a mission file (bench or hardware) and write run.mcap + summary.json"),
@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(entry(rest) or 0)
     except UserError as e:
-        print(f"capm-field {name}: error: {e}", file=sys.stderr)
+        print(f"capm-field {name}: error: {terminal_safe(str(e))}", file=sys.stderr)
         return 2
     except OSError as e:
         if e.filename is None:

@@ -37,6 +37,13 @@ def shown(value: Any, limit: int = SHOWN) -> str:
     return text if len(text) <= limit + 2 else text[:limit] + "…"
 
 
+def terminal_safe(text: str) -> str:
+    """`text` with every character that is not printable (escape sequences, newlines, NUL: from
+    a log or file name someone else wrote) shown as its Python escape, so a line printed to a
+    terminal stays one line and cannot clear or rewrite the screen."""
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def finite_real(v: Any) -> bool:
     """A finite real number from a decoder (JSON, CBOR): a finite float, or an int a float can hold
     (not a bool). A bignum such as 2**1100 is not one: `math.isfinite` raises OverflowError on it."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from capm_field.camera import PinholeCamera
 from capm_field.detector import detect_centre
-from capm_field.errors import UserError, check_output, write_output
+from capm_field.errors import UserError, check_output, terminal_safe, write_output
 
 from .executive import roi_for
 from .runlog import TOPICS
@@ -184,10 +185,12 @@ def _answer(pixel, reason) -> str:
 
 
 def _line(r: Replayed) -> str:
+    """One detection's line; its id as read from the log, escaped (a log is someone else's text)."""
+    tid = terminal_safe(r.target_id)
     if r.error is not None:
-        return f"{r.target_id}: not replayed: {r.error}"
+        return f"{tid}: not replayed: {terminal_safe(r.error)}"
     moved = f", moved {r.moved_px:.1f} px" if r.moved_px is not None else ""
-    return f"{r.target_id}: logged {_answer(r.logged_pixel, r.logged_reason)}, now {_answer(r.pixel, r.reason)}{moved}"
+    return f"{tid}: logged {_answer(r.logged_pixel, r.logged_reason)}, now {_answer(r.pixel, terminal_safe(r.reason) if r.reason else r.reason)}{moved}"
 
 
 def summary(rows: list[Replayed]) -> dict[str, Any]:
@@ -206,10 +209,22 @@ def summary(rows: list[Replayed]) -> dict[str, Any]:
         "wrong_mm": WRONG_MM,
     }
     for which in ("logged", "now"):
-        e = [x for r in done if (x := r.err_mm(which)) is not None]
+        e = [x for r in done if (x := r.err_mm(which)) is not None and math.isfinite(x)]  # (NaN: a damaged log's)
         s[f"error_mm_{which}"] = {"n": len(e), "median": float(np.median(e)) if e else None,
                                   "wrong": sum(x > WRONG_MM for x in e)}
     return s
+
+
+def _finite(v: Any) -> Any:
+    """`v` with NaN and ±inf (a damaged or foreign log's numbers) as None: standard JSON has no
+    NaN, and other readers refuse the `NaN` Python would write."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    return v
 
 
 def main(argv: list[str]) -> int:
@@ -227,12 +242,17 @@ def main(argv: list[str]) -> int:
     if path.is_dir():
         path = path / "run.mcap"
     rows, report = replay(path, progress=not a.quiet)
+    notes = report.notes(path)  # a truncated or damaged log: said, not hidden behind the figures
+    for note in notes:
+        print(f"capm-field detect-replay: note: {terminal_safe(note)}", file=sys.stderr)
     if not rows:
-        raise UserError(f"{path}: no detections to replay (only fault-injected ones, or none)")
+        damaged = " in what could be read" if notes else ""
+        raise UserError(f"{path}: no detections to replay{damaged} (only fault-injected ones, or none)")
     if all(r.error == "no image stored before it" for r in rows):
         raise UserError(f"{path}: the run stored no images (output.images: false)")
     if all(r.error is not None for r in rows):
-        raise UserError(f"{path}: none of its {len(rows)} detections could be replayed ({rows[0].target_id}: {rows[0].error})")
+        raise UserError(f"{path}: none of its {len(rows)} detections could be replayed ({rows[0].target_id}: {rows[0].error})"
+                        + ("; the log is damaged (notes above)" if notes else ""))
     s = summary(rows)
     print(f"{s['replayed']} of {s['detections']} detections replayed: found {s['found_logged']} logged, {s['found_now']} now; "
           f"{s['moved_over_1px']} answers moved > 1 px")
@@ -240,9 +260,7 @@ def main(argv: list[str]) -> int:
         e = s[f"error_mm_{which}"]
         if e["n"]:
             print(f"  against the bench truth, {which:<6}: median {e['median']:.1f} mm, {e['wrong']} of {e['n']} over {s['wrong_mm']:.0f} mm")
-    if report.damaged:
-        print(f"  note: {report.damage_note()}")
     if a.json:
-        doc = {"run": str(path), "summary": s, "detections": [r.__dict__ for r in rows]}
-        write_output(a.json, json.dumps(doc, indent=2), "--json")
+        doc = {"run": str(path), "summary": s, "log_notes": notes, "detections": [r.__dict__ for r in rows]}
+        write_output(a.json, json.dumps(_finite(doc), indent=2, allow_nan=False), "--json")
     return 0

@@ -434,18 +434,8 @@ def main(argv: list[str] | None = None) -> int:
         raise UserError("no display for the native viewer (DISPLAY/WAYLAND_DISPLAY unset): use --rrd FILE or --web")
     data = load_run(mcap)
     rep = data.report
-    if rep.error and not rep.has_summary:
-        print(f"capm-field review: note: {mcap} is truncated (crash?); showing what was complete: {rep.error}", file=sys.stderr)
-    elif rep.error:  # a closed file (valid summary) whose read stopped early: damage, not a crash
-        print(f"capm-field review: note: {mcap} is damaged; showing what was readable: {rep.error}", file=sys.stderr)
-    elif rep.complete and not rep.has_summary:  # closed, but its summary failed its CRC (or was never written)
-        print(f"capm-field review: note: {mcap} has no valid summary section; showing what its data section holds",
-              file=sys.stderr)
-    if rep.damage_note():
-        print(f"capm-field review: note: {mcap} is damaged: {rep.damage_note()}", file=sys.stderr)
-    if rep.undecodable:
-        print(f"capm-field review: note: {rep.undecodable} message(s) skipped, not readable as this run log's "
-              f"(first: {rep.undecodable_note})", file=sys.stderr)
+    for note in rep.notes(mcap):
+        print(f"capm-field review: note: {note}", file=sys.stderr)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
         print(f"wrote {args.rrd} ({data.report.messages} messages)")

@@ -80,6 +80,23 @@ class ReadReport:
             parts.append(f"{self.records} of the {self.expected_messages} messages its summary lists were read ({self.lost} lost)")
         return "; ".join(parts) or None
 
+    def notes(self, path: Path | str) -> list[str]:
+        """What a reader of `path` should be told about this read: a truncated or damaged file,
+        messages skipped (one line each; none for a clean read). `capm-field review` and
+        `detect-replay` print them."""
+        out = []
+        if self.error and not self.has_summary:
+            out.append(f"{path} is truncated (crash?); showing what was complete: {self.error}")
+        elif self.error:  # a closed file (valid summary) whose read stopped early: damage, not a crash
+            out.append(f"{path} is damaged; showing what was readable: {self.error}")
+        elif self.complete and not self.has_summary:  # closed, but its summary failed its CRC (or was never written)
+            out.append(f"{path} has no valid summary section; showing what its data section holds")
+        if self.damage_note():
+            out.append(f"{path} is damaged: {self.damage_note()}")
+        if self.undecodable:
+            out.append(f"{self.undecodable} message(s) skipped, not readable as this run log's (first: {self.undecodable_note})")
+        return out
+
     def skip(self, topic: str, why: str) -> None:
         """Count a message that is not read (undecodable, or not what its topic should carry)."""
         self.undecodable += 1

@@ -139,3 +139,37 @@ def test_camera_pose_needs_a_chain_from_field_to_camera():
         detect_replay.camera_pose({"camera": ("body", eye)})
     with pytest.raises(ValueError, match="no transform chain"):
         detect_replay.camera_pose({"camera": ("body", eye), "body": ("camera", eye)})  # a loop
+
+
+def test_a_truncated_log_is_said_to_be_one(runs, capsys, tmp_path):
+    """A log cut short (a crash, a copy stopped half-way) replays what it holds, and says it is cut:
+    the figures alone read as a whole run (found by a fuzzing sweep)."""
+    whole = (runs["jpeg"] / "run.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[: int(len(whole) * 0.6)])
+    rc, doc, out, err = _replay(capsys, cut, tmp_path, "--quiet")
+    assert rc == 0 and "is truncated (crash?)" in err
+    assert doc["log_notes"] and "truncated" in doc["log_notes"][0]
+    assert 0 < doc["summary"]["detections"]
+    rc, doc, out, err = _replay(capsys, runs["jpeg"], tmp_path, "--quiet")  # a whole log: no note
+    assert rc == 0 and "note:" not in err and doc["log_notes"] == []
+
+
+def test_text_from_a_log_cannot_drive_the_terminal():
+    """Ids read back from a log are someone else's text: escape sequences and newlines are shown
+    escaped, one line per detection (an id starting with ESC[2J cleared the screen)."""
+    from capm_field.errors import terminal_safe
+    from mission.detect_replay import Replayed, _line
+
+    evil = "\x1b[2J\x1b[31mEVIL\x1b[0m\nW01"
+    line = _line(Replayed(evil, 0, (1.0, 2.0), None, None))
+    assert "\x1b" not in line and "\n" not in line and "\\x1b[2J" in line and "\\nW01" in line
+    assert terminal_safe("W01 (ok)") == "W01 (ok)" and terminal_safe("a\x00b\tc") == "a\\x00b\\tc"
+
+
+def test_cli_error_lines_are_escaped(capsys, tmp_path):
+    bad = tmp_path / "x\x1b[2Jy.mcap"
+    bad.write_bytes(b"not an mcap")
+    rc = cli.main(["detect-replay", str(bad)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "\x1b" not in err and "\\x1b[2J" in err and err.count("\n") == 1
