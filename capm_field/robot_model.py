@@ -23,7 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from .config import RobotConfig
-from .errors import UserError
+from .errors import UserError, shown
 from .geometry import SE2, transform_matrix
 
 _URDF_IN_PACKAGE = "cmeel.prefix/share/example-robot-data/robots/z1_description/urdf/z1.urdf"
@@ -36,6 +36,9 @@ def default_urdf_path() -> Path:
     except importlib.metadata.PackageNotFoundError as e:
         raise UserError("example-robot-data is not installed: it ships the Z1 URDF (pip install example-robot-data)") from e
     return Path(str(dist.locate_file(_URDF_IN_PACKAGE)))
+
+
+MAX_JOINT_OFFSET_M = 2.0  # a joint this far from its parent is not an arm's (the Z1's: ≤ 0.35 m)
 
 
 def _axis_rotation(kind: str, q: np.ndarray) -> np.ndarray:
@@ -86,6 +89,7 @@ class RobotModel:
                 raise UserError(f"robot.arm.locked_joints: no joint named {unknown[0][:80]!r} in {urdf.name} "
                                 f"(its joints: {', '.join(list(full.names)[1:])})"[:400])
             raise UserError(f"robot.arm.urdf: expected a 6-joint arm after locking {self.cfg.arm.locked_joints}, got nq={self.model.nq}")
+        self._check_joints(urdf)
         flange = self.cfg.arm.flange_frame
         if not self.model.existFrame(flange):
             raise UserError(f"robot.arm.flange_frame: no frame named {flange!r} in {urdf.name}")
@@ -107,6 +111,21 @@ class RobotModel:
         self.joint_names = [self.model.names[i] for i in range(1, self.model.njoints)]
         self.T_body_base = transform_matrix(self.cfg.body.arm_mount)
         self.T_body_base[2, 3] += 0.0  # body origin is already at operating height
+
+    def _check_joints(self, urdf: Path) -> None:
+        """What the kinematics here can use: revolute joints about a frame axis (the batched FK,
+        `_axis_rotation`; the Z1's are), and finite joint offsets of arm size. A URDF off either
+        (a tilted axis, an origin in millimetres) failed later as a traceback in `regions` and
+        `bench`, or with all areas 0 and no word (found by a fuzzing sweep)."""
+        for j in range(1, self.model.njoints):
+            name, kind = self.model.names[j], self.model.joints[j].shortname()
+            if kind not in ("JointModelRX", "JointModelRY", "JointModelRZ"):
+                raise UserError(f"robot.arm.urdf: joint {name!r} of {urdf.name} is {kind.removeprefix('JointModel')}: "
+                                "only revolute joints about the x, y or z axis of their frame are supported")
+            d = math.hypot(*self.model.jointPlacements[j].translation)  # (no overflow: 1e300 stays 1e300)
+            if not d <= MAX_JOINT_OFFSET_M:  # (NaN too)
+                raise UserError(f"robot.arm.urdf: joint {name!r} of {urdf.name} sits {shown(d)} m from "
+                                f"its parent (limit {MAX_JOINT_OFFSET_M} m: URDF lengths are in metres)")
 
     # ---- frames --------------------------------------------------------------------------
     @property

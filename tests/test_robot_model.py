@@ -69,3 +69,27 @@ def test_segment_blocked_matches_dense_sampling(robot, a, b):
     exact = bool(robot.segment_blocked(a, b))
     if sampled:
         assert exact  # anything dense sampling finds inside, the exact test finds too
+
+
+@pytest.mark.parametrize("joint, old, new, message", [
+    ("joint1", '<axis xyz="0 0 1"/>', '<axis xyz="0 0.6 0.8"/>', "RevoluteUnaligned: only revolute joints about the x, y or z"),
+    ("joint2", '<origin rpy="0 0 0" xyz="0 0 0.045"/>', '<origin rpy="0 0 0" xyz="0 0 45"/>', "45.0 m from its parent"),
+    ("joint2", '<origin rpy="0 0 0" xyz="0 0 0.045"/>', '<origin rpy="0 0 0" xyz="1e300 0 0.045"/>', "1e\\+300 m from its parent"),
+])
+def test_a_urdf_the_kinematics_cannot_use_is_refused_at_load(tmp_path, joint, old, new, message):
+    """The real Z1 URDF with one joint changed: a tilted axis (the batched FK turns about x, y or
+    z only) or an origin in millimetres: refused when loaded, naming the joint (they were a
+    traceback in `regions` and `bench`, or all areas 0 and no word)."""
+    from capm_field.robot_model import default_urdf_path
+
+    text = default_urdf_path().read_text()
+    start = text.index(f'<joint name="{joint}"')
+    end = text.index("</joint>", start)
+    assert old in text[start:end]
+    bad = tmp_path / "z1_changed.urdf"
+    bad.write_text(text[:start] + text[start:end].replace(old, new) + text[end:])
+    with pytest.raises(UserError, match=f"joint '{joint}' of z1_changed.urdf .*{message}"):
+        RobotModel(RobotConfig(arm=ArmConfig(urdf=str(bad))))
+    same = tmp_path / "z1_same.urdf"
+    same.write_text(text)
+    assert RobotModel(RobotConfig(arm=ArmConfig(urdf=str(same)))).model.nq == 6
