@@ -135,7 +135,7 @@ class FaultSpec(_Strict):
 
 class BenchDrivers(_Tagged):
     kind: Literal["bench"]
-    seed: Annotated[int, BeforeValidator(not_bool)] = Field(0, ge=0)
+    seed: Annotated[int, BeforeValidator(not_bool)] = Field(0, ge=0, le=2**63 - 1)  # the range --seed takes
     transport: Literal["inprocess", "wire"] = Field("inprocess", description="in-process sim, or real adapters over loopback")
     faults: list[FaultSpec] | str = Field(default_factory=list, description="list, or 'random:SEED'")
     mpoi_in_troi: bool = Field(True, description="true MPOIs are drawn from N(X_w, Σ_w) restricted to the TROI")

@@ -66,6 +66,7 @@ def test_good_minimal_mission_has_paper_defaults(tmp_path):
         (GOOD.replace("x: 1.0", "x: yes"), [":3: field.trois.0.x: a number is needed, not a yes/no value"]),
         (GOOD.replace("x: 1.0", "x: 1.0e+308"), [":3: field.trois.0.x: Input should be less than or equal to 10000"]),
         (GOOD.replace("seed: 3", "seed: -1"), [":5: drivers.seed: Input should be greater than or equal to 0"]),
+        (GOOD.replace("seed: 3", "seed: 99999999999999999999999999999"), [":5: drivers.seed: Input should be less than or equal to 9223372036854775807"]),
         (GOOD.replace("x: 1.0, y: 2.0", "x: 8.54, y: 47.38"),  # lon/lat read as metres: a 48 m walk
          ["field: the walk from start to T00 is 48.1 m, more than the body covers"]),
         (GOOD.replace("seed: 3}", "seed: 3, faults: 'meteor@0'}"), [":5: drivers.faults: fault kind 'meteor' unknown"]),
