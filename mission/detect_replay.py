@@ -181,7 +181,7 @@ def _replay_one(r: Replayed, msg: Any, image: bytes | None, cal: Any, tree: dict
 def _answer(pixel, reason) -> str:
     if pixel is not None and reason is None:
         return f"({pixel[0]:.1f}, {pixel[1]:.1f})"
-    return reason or "none"
+    return terminal_safe(reason) if reason else "none"  # (a logged reason is the log's text)
 
 
 def _line(r: Replayed) -> str:
@@ -190,7 +190,7 @@ def _line(r: Replayed) -> str:
     if r.error is not None:
         return f"{tid}: not replayed: {terminal_safe(r.error)}"
     moved = f", moved {r.moved_px:.1f} px" if r.moved_px is not None else ""
-    return f"{tid}: logged {_answer(r.logged_pixel, r.logged_reason)}, now {_answer(r.pixel, terminal_safe(r.reason) if r.reason else r.reason)}{moved}"
+    return f"{tid}: logged {_answer(r.logged_pixel, r.logged_reason)}, now {_answer(r.pixel, r.reason)}{moved}"
 
 
 def summary(rows: list[Replayed]) -> dict[str, Any]:

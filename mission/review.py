@@ -32,7 +32,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import McapReader
 
-from capm_field.errors import UserError, check_output
+from capm_field.errors import UserError, check_output, terminal_safe
 
 from .runlog import PROTO_TOPICS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
@@ -435,7 +435,7 @@ def main(argv: list[str] | None = None) -> int:
     data = load_run(mcap)
     rep = data.report
     for note in rep.notes(mcap):
-        print(f"capm-field review: note: {note}", file=sys.stderr)
+        print(f"capm-field review: note: {terminal_safe(note)}", file=sys.stderr)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
         print(f"wrote {args.rrd} ({data.report.messages} messages)")
