@@ -686,6 +686,14 @@ def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
     return trois
 
 
+def _csv_number(text: str) -> float:
+    """A CSV cell as a number: float()'s syntax without its digit-group underscores (`1_0` is 10 to
+    Python, and ambiguous to a person, as the mission file's YAML numbers are)."""
+    if "_" in text:
+        raise ValueError(text)
+    return float(text)
+
+
 def load_prescan(src: Path) -> list[TROI]:
     """TROIs from a prescan file: CSV (x,y,r[,id]) or GeoJSON (Point features with radius|r)."""
     if not src.is_file():
@@ -704,13 +712,21 @@ def load_prescan(src: Path) -> list[TROI]:
         raise MissionError([f"{src}: cannot read the prescan file: {e}"]) from e
     if suffix == ".csv":
         try:
-            rows = list(csv.DictReader(io.StringIO(text, newline="")))
+            reader = csv.DictReader(io.StringIO(text, newline=""))
+            header = [h.strip() for h in (reader.fieldnames or [])]
+            rows = list(reader)
         except csv.Error as e:
             raise MissionError([f"{src}: not a readable CSV file: {e}"]) from e
+        twice = sorted({h for h in header if h in ("x", "y", "r", "id") and header.count(h) > 1})
+        if twice:  # DictReader keeps the last of two: which one the survey meant is not known
+            raise MissionError([f"{src}:1: column {twice[0]!r} named twice in the header"])
+        if not {"x", "y", "r"} <= set(reader.fieldnames or ()):
+            raise MissionError([f"{src}:1: the first line must name the columns x, y, r (and optionally id); "
+                                f"got {shown(','.join(reader.fieldnames or []))}"])
         _check_count(src, len(rows))
         for i, row in enumerate(rows, start=2):
             try:
-                x, y, r = float(row["x"]), float(row["y"]), float(row["r"])
+                x, y, r = _csv_number(row["x"]), _csv_number(row["y"]), _csv_number(row["r"])
             except (KeyError, TypeError, ValueError):
                 problems.append(f"{src}:{i}: need numeric columns x, y, r (got {shown(row)})")
                 continue

@@ -302,3 +302,16 @@ def test_mission_fault_list_takes_phase_and_at_s(tmp_path):
     p.write_text(GOOD.replace("seed: 3", "seed: 3, faults: [{kind: slip, at_s: 1, params: {at_s: 2}}]"))
     with pytest.raises(MissionError, match="at_s given twice"):
         load_mission(p)
+
+
+@pytest.mark.parametrize("text, expect", [
+    ("x,x,y,r\n1,5,2,0.2\n", "bad.csv:1: column 'x' named twice"),  # DictReader kept the last x silently
+    ("1,2,0.2\n3,4,0.2\n", "bad.csv:1: the first line must name the columns x, y, r"),  # was "field: no TROIs"
+    ("x,y,r\n1_0,2,0.2\n", "bad.csv:2: need numeric columns x, y, r"),  # float() read 1_0 as 10
+])
+def test_prescan_csv_header_and_numbers_are_checked(tmp_path, text, expect):
+    """Found by a fuzzing sweep: each of these loaded (or failed with a misleading line) before."""
+    (tmp_path / "bad.csv").write_text(text)
+    m = GOOD.replace("  trois:\n    - {x: 1.0, y: 2.0, r: 0.2}\n", "  prescan: bad.csv\n")
+    with pytest.raises(MissionError, match=expect):
+        load_mission(_write(tmp_path, m))
