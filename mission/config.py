@@ -713,16 +713,16 @@ def load_prescan(src: Path) -> list[TROI]:
     if suffix == ".csv":
         try:
             reader = csv.DictReader(io.StringIO(text, newline=""))
-            header = [h.strip() for h in (reader.fieldnames or [])]
             rows = list(reader)
         except csv.Error as e:
             raise MissionError([f"{src}: not a readable CSV file: {e}"]) from e
-        twice = sorted({h for h in header if h in ("x", "y", "r", "id") and header.count(h) > 1})
+        header = reader.fieldnames or []
+        twice = [h for h in ("x", "y", "r", "id") if header.count(h) > 1]
         if twice:  # DictReader keeps the last of two: which one the survey meant is not known
             raise MissionError([f"{src}:1: column {twice[0]!r} named twice in the header"])
-        if not {"x", "y", "r"} <= set(reader.fieldnames or ()):
+        if not {"x", "y", "r"} <= set(header):
             raise MissionError([f"{src}:1: the first line must name the columns x, y, r (and optionally id); "
-                                f"got {shown(','.join(reader.fieldnames or []))}"])
+                                f"got {shown(','.join(header))}"])
         _check_count(src, len(rows))
         for i, row in enumerate(rows, start=2):
             try:

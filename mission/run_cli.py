@@ -82,11 +82,10 @@ def _output_problem(out: Path) -> str | None:
 
 def _write_new(path: Path, text: str) -> None:
     """`text` into a new file at `path`: whatever is there (a crashed run's temp file, or a link
-    planted to make the run write elsewhere) is removed first, and the file is created exclusively,
-    without following a link (a link put back in between is an error, not a write through it)."""
-    if path.is_symlink() or path.is_file():
-        path.unlink()
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    planted to make the run write elsewhere) is removed first, and the file is created exclusively
+    (O_EXCL never follows a link: one put back in between is an error, not a write through it)."""
+    path.unlink(missing_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(text)
 

@@ -37,20 +37,16 @@ def _sequence(tmp: Path, img: np.ndarray, n: int = 400) -> str:
     return str(tmp / "f_%04d.png")
 
 
-def _capture(cam: OpenCVCamera, timeout: float = 5.0):
-    return cam.capture(timeout)
-
-
 def test_frames_of_the_configured_size_arrive_unchanged(tmp_path):
     img = _scene(W, H)
     cam = OpenCVCamera(_sequence(tmp_path / "seq", img), CFG)
     try:
-        f = _capture(cam)
+        f = cam.capture(5.0)
         assert f.image.dtype == np.uint8 and f.image.shape == (H, W, 3)
         assert np.array_equal(f.image, img)  # lossless source, no resize: bit for bit
         assert f.intrinsics.K[0, 0] == CFG.fx and (f.intrinsics.width, f.intrinsics.height) == (W, H)
         assert cam.stream_size == (W, H)
-        g = _capture(cam)
+        g = cam.capture(5.0)
         assert g.stamp_ns > f.stamp_ns  # each capture waits for a newer frame
     finally:
         cam.close()
@@ -61,8 +57,8 @@ def test_a_larger_stream_of_the_same_aspect_is_resized_and_reported(tmp_path, ca
     cam = OpenCVCamera(_sequence(tmp_path / "seq", big), CFG)
     try:
         with caplog.at_level(logging.WARNING, logger="drivers.opencv_camera"):
-            f = _capture(cam)
-            _capture(cam)
+            f = cam.capture(5.0)
+            cam.capture(5.0)
         assert f.image.shape == (H, W, 3)
         assert np.array_equal(f.image, cv2.resize(big, (W, H), interpolation=cv2.INTER_AREA))
         assert cam.stream_size == (2 * W, 2 * H)
@@ -76,7 +72,7 @@ def test_a_stream_of_another_aspect_ratio_is_refused_not_stretched(tmp_path):
     cam = OpenCVCamera(_sequence(tmp_path / "seq", _scene(120, 90)), CFG)  # 4:3 for a 16:9 calibration
     try:
         with pytest.raises(DriverError, match=r"120x90.*aspect ratio.*robot\.camera"):
-            _capture(cam)
+            cam.capture(5.0)
         with pytest.raises(DriverError):  # and stays refused
             cam.capture(0.5)
     finally:
@@ -127,7 +123,7 @@ def test_compressed_frames_and_an_unhonoured_format_are_reported(tmp_path, caplo
     try:
         assert cam.stream_format == "MJPG"
         with caplog.at_level(logging.WARNING, logger="drivers.opencv_camera"):
-            f = _capture(cam)
+            f = cam.capture(5.0)
         msgs = " | ".join(r.getMessage() for r in caplog.records)
         assert "asked for YUYV" in msgs and "delivers MJPG" in msgs
         assert "compressed" in msgs and "fourcc: YUYV" in msgs
@@ -140,7 +136,7 @@ def test_a_raw_stream_gives_no_format_warning(tmp_path, caplog):
     cam = OpenCVCamera(_sequence(tmp_path / "seq", _scene(W, H)), CFG)
     try:
         with caplog.at_level(logging.WARNING, logger="drivers.opencv_camera"):
-            _capture(cam)
+            cam.capture(5.0)
         assert not caplog.records
     finally:
         cam.close()
