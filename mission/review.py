@@ -22,6 +22,7 @@ import subprocess
 import sys
 import tempfile
 import uuid
+import warnings
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +31,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-from rerun.chunk import McapReader
+from rerun.chunk import McapReader, RrdReader
 
 from capm_field.errors import UserError, check_output, terminal_safe
 
@@ -81,6 +82,7 @@ class RunData:
     messages: dict[str, list] = field(default_factory=lambda: defaultdict(list))  # topic -> [(t, msg)]
     body_path: list[tuple[float, float, float]] = field(default_factory=list)
     report: ReadReport = field(default_factory=ReadReport)
+    imported: int | None = None  # messages handed to Rerun's MCAP importer (set by `write_rrd`)
 
 
 def _descriptor_problem(theirs: Any, ours: Any, seen: set[str] | None = None) -> str | None:
@@ -128,26 +130,26 @@ def load_run(path: Path) -> RunData:
     for m in iter_run(path, report=data.report):
         want = _SCHEMAS.get(m.topic)
         if want and m.schema != want:
-            data.report.skip(m.topic, f"schema {m.schema or '(none)'!r}, expected {want}")
+            data.report.skip(m.topic, f"schema {m.schema or '(none)'!r}, expected {want}", m.record)
             continue
         if want and isinstance(m.data, (bytes, str)):  # an encoding with no decoder here (json, ...)
-            data.report.skip(m.topic, f"{want} in an encoding other than protobuf")
+            data.report.skip(m.topic, f"{want} in an encoding other than protobuf", m.record)
             continue
         if m.topic in _OURS:
             desc = m.data.DESCRIPTOR
             if desc not in checked:
                 checked[desc] = _descriptor_problem(desc, message_class(_OURS[m.topic]).DESCRIPTOR)
             if checked[desc]:
-                data.report.skip(m.topic, f"{want} with another descriptor: {checked[desc]}")
+                data.report.skip(m.topic, f"{want} with another descriptor: {checked[desc]}", m.record)
                 continue
         if m.log_time > _TIME_MAX_NS:  # np.datetime64 / Rerun timelines are int64 ns
-            data.report.skip(m.topic, f"log_time {m.log_time} past 2**63 - 1 ns, beyond a Rerun timeline")
+            data.report.skip(m.topic, f"log_time {m.log_time} past 2**63 - 1 ns, beyond a Rerun timeline", m.record)
             continue
         if m.topic == TOPICS["tf"]:
             try:
                 poses = _body_poses(m.data)
             except (AttributeError, TypeError) as e:
-                data.report.skip(m.topic, f"{want} with other fields: {type(e).__name__}: {e}")
+                data.report.skip(m.topic, f"{want} with other fields: {type(e).__name__}: {e}", m.record)
                 continue
             data.body_path.extend(poses)
         elif m.topic in _CUSTOM:
@@ -339,11 +341,16 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
             raise UserError(f"--rrd {out}: cannot write it: {e}") from None
         with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
             source = mcap
-            if not data.report.complete or data.report.damaged or not data.report.has_summary:
+            rep = data.report
+            if not rep.complete or rep.damaged or not rep.has_summary or rep.skipped_records:
                 # A crash or damaged file: Rerun's own recovery (recover=True) drops channels whose
                 # message index was torn, so hand it a finalised copy of exactly what our reader read.
+                # Payloads we could not decode are left out: on one, Rerun's importer logs an error
+                # and its file sink then fails to finish the recording (no footer: unreadable).
                 source = Path(tmp) / "salvaged.mcap"
-                salvage(mcap, source)
+                data.imported = salvage(mcap, source, drop=rep.skipped_records).messages
+            else:
+                data.imported = rep.messages
             try:
                 reader = McapReader(str(source), recover=True, timeline_type="duration_ns" if duration else "timestamp_ns")
                 rr.send_chunks(reader.stream(), recording=rec)
@@ -353,6 +360,7 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
         log_extras(rec, data, duration)
         rec.flush()
         rec.disconnect()
+        _check_rrd(part, out)
         os.replace(part, out)
     except BaseException:  # incl. Ctrl-C: the partial recording goes, `out` is untouched
         rec.disconnect()
@@ -362,6 +370,18 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
             pass
         raise
     return data
+
+
+def _check_rrd(part: Path, out: Path) -> None:
+    """Rerun's file sink reports a recording it could not finish only in its log, so open the
+    written file's manifest (written last, ~40 ms) before it replaces `out`."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer/manifest": the error below says it
+            RrdReader(part).store()
+    except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
+        why = " ".join(str(e).replace(str(part), "").split())[:200]
+        raise UserError(f"--rrd {out}: Rerun did not finish the recording ({why}); nothing written") from None
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -438,7 +458,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"capm-field review: note: {terminal_safe(note)}", file=sys.stderr)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
-        print(f"wrote {args.rrd} ({data.report.messages} messages)")
+        skipped = f"; {rep.undecodable} skipped, see the note above" if rep.undecodable else ""
+        print(f"wrote {args.rrd} ({data.imported} messages{skipped})")
         return 0
 
     with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:

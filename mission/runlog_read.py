@@ -17,10 +17,10 @@ import bisect
 import os
 import struct
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
-from typing import Any, BinaryIO, Callable, Iterator
+from typing import Any, BinaryIO, Callable, Collection, Iterator
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
@@ -41,6 +41,7 @@ class RunMessage:
     log_time: int
     schema: str
     data: Any  # decoded protobuf message, or str for /robot_description
+    record: int = -1  # its Message record's place among the file's (0-based, read order; `salvage(drop=)`)
 
 
 @dataclass
@@ -56,6 +57,7 @@ class ReadReport:
     repair: str | None = None  # the first of them
     undecodable: int = 0  # messages skipped because their payload or schema did not decode
     undecodable_note: str | None = None  # the first of them: topic and problem
+    skipped_records: set[int] = field(default_factory=set)  # their places (`RunMessage.record`)
     records: int = 0  # Message records read, decodable or not
     expected_messages: int | None = None  # the summary's statistics.message_count (None: no summary)
 
@@ -97,9 +99,12 @@ class ReadReport:
             out.append(f"{self.undecodable} message(s) skipped, not readable as this run log's (first: {self.undecodable_note})")
         return out
 
-    def skip(self, topic: str, why: str) -> None:
-        """Count a message that is not read (undecodable, or not what its topic should carry)."""
+    def skip(self, topic: str, why: str, record: int | None = None) -> None:
+        """Count a message that is not read (undecodable, or not what its topic should carry);
+        `record`: its place, so that `salvage` can leave it out of a copy for other readers."""
         self.undecodable += 1
+        if record is not None:
+            self.skipped_records.add(record)
         self.undecodable_note = self.undecodable_note or f"{topic}: {why}"
 
 
@@ -394,17 +399,19 @@ def iter_run(path: str | Path, topics: set[str] | None = None, report: ReadRepor
                     raise dec
                 data = dec(msg.data) if dec is not None else msg.data
         except Exception as e:  # noqa: BLE001 - protobuf DecodeError, struct/Index/Unicode errors
-            report.skip(channel.topic, f"{type(e).__name__}: {' '.join(str(e).split())[:120]}")
+            report.skip(channel.topic, f"{type(e).__name__}: {' '.join(str(e).split())[:120]}", report.records - 1)
             continue
         report.messages += 1
-        yield RunMessage(channel.topic, msg.log_time, schema.name if schema else "", data)
+        yield RunMessage(channel.topic, msg.log_time, schema.name if schema else "", data, report.records - 1)
 
 
-def salvage(src: str | Path, dst: str | Path) -> ReadReport:
+def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = ()) -> ReadReport:
     """Copy every readable record of a (crash-truncated) log into a finalised MCAP at `dst`.
 
     Bytes are copied, not re-encoded. Tools that insist on a summary and complete message
     indexes (Rerun's importer drops channels whose index was torn) read the copy instead.
+    `drop`: Message records left out, by place (`RunMessage.record`, `ReadReport.skipped_records`):
+    payloads our reader could not decode, which stop Rerun's importer from finishing a recording.
     """
     p = check_mcap(src)
     report = ReadReport()
@@ -424,6 +431,8 @@ def salvage(src: str | Path, dst: str | Path) -> ReadReport:
                 w.add_metadata(rec.name, dict(rec.metadata))
             elif isinstance(rec, Message) and rec.channel_id not in channels:
                 report.orphans += 1
+            elif isinstance(rec, Message) and report.records - 1 in drop:
+                report.undecodable += 1
             elif isinstance(rec, Message):
                 if rec.channel_id not in channel_ids:
                     ch = channels[rec.channel_id]

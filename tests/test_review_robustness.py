@@ -99,7 +99,10 @@ def test_a_failed_review_keeps_the_previous_rrd_and_leaves_no_partial_file(tmp_p
         ("/energy", "capm.log.Energy", descriptor_set_bytes(), [(T0, message_class("Energy")(total=1.0).SerializeToString())]),
         ("/plan", "capm.log.Plan", b"not a descriptor set", [(T0, b"\x00")]),
     ])
-    rc, err = _review(bad, out, capsys)
+    with monkeypatch.context() as m:  # (a message our reader skips is no longer handed to Rerun)
+        real = review.salvage
+        m.setattr(review, "salvage", lambda src, dst, drop=(): real(src, dst))
+        rc, err = _review(bad, out, capsys)
     assert rc == 2 and "Rerun cannot read" in err
     assert out.read_bytes() == b"an earlier, good recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap", "good.mcap", "out.rrd"]
@@ -113,6 +116,9 @@ def test_a_failed_review_keeps_the_previous_rrd_and_leaves_no_partial_file(tmp_p
     assert out.read_bytes() == b"an earlier, good recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap", "good.mcap", "out.rrd"]
 
+    rc, err = _review(bad, tmp_path / "bad.rrd", capsys)  # the schema our reader skips is left out
+    assert rc == 0 and "1 message(s) skipped" in err, err
+    (tmp_path / "bad.rrd").unlink()
     rc, _ = _review(good, out, capsys)  # and a review that succeeds replaces it
     assert rc == 0 and out.read_bytes()[:4] != b"an e" and out.stat().st_size > 1000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap", "good.mcap", "out.rrd"]
@@ -319,3 +325,67 @@ def test_roi_rim_points_no_image_can_hold_are_left_out(tmp_path, capsys):
     assert rc == 0, err
     ents = rrd_contents(tmp_path / "o.rrd")
     assert "LineStrips2D:strips" in ents["/camera/image/roi"]
+
+
+# ---- 9. payloads Rerun's importer cannot decode ---------------------------------------------------
+def _foxglove_log(path: Path, n: int = 12) -> Path:
+    """A foxglove-sdk log: n /tf FrameTransforms (field→body) and n /log lines."""
+    import foxglove
+    from foxglove.channels import FrameTransformsChannel, LogChannel
+    from foxglove.messages import FrameTransform, FrameTransforms, Log, LogLevel, Quaternion, Vector3
+
+    ctx = foxglove.Context()
+    w = foxglove.open_mcap(str(path), allow_overwrite=True, context=ctx)
+    tf, log = FrameTransformsChannel("/tf", context=ctx), LogChannel("/log", context=ctx)
+    for i in range(n):
+        tf.log(FrameTransforms(transforms=[FrameTransform(parent_frame_id="field", child_frame_id="body",
+                                                          translation=Vector3(x=0.1 * i, y=0.0, z=0.0),
+                                                          rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))]), log_time=T0 + i * 10**7)
+        log.log(Log(message=f"line {i}", level=LogLevel.Info), log_time=T0 + i * 10**7)
+    w.close()
+    return path
+
+
+def _garbled(src: Path, dst: Path, topic: str) -> Path:
+    """A copy whose `topic` payloads are bytes no protobuf decoder takes."""
+    with src.open("rb") as f, dst.open("wb") as g:
+        r = make_reader(f)
+        w = Writer(g)
+        w.start(profile="", library="test")
+        sids: dict[int, int] = {}
+        cids: dict[int, int] = {}
+        for schema, ch, msg in r.iter_messages():
+            if schema.id not in sids:
+                sids[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if ch.id not in cids:
+                cids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sids[schema.id])
+            data = b"\x0f\xff\xff" + msg.data[:20] if ch.topic == topic else msg.data
+            w.add_message(cids[ch.id], msg.log_time, data, msg.publish_time)
+        w.finish()
+    return dst
+
+
+def test_payloads_rerun_cannot_decode_are_left_out_and_an_unfinished_recording_is_refused(tmp_path, capsys, monkeypatch):
+    """A log whose /tf payloads are all garbage: Rerun's importer logged errors and its file sink then
+    failed to finish the recording (no footer; the viewer's reader refuses it), with exit 0 and
+    "wrote". Now the messages our reader skips are not handed to the importer, and a recording Rerun
+    did not finish is an error that leaves the previous .rrd as it was."""
+    from rerun.chunk import RrdReader
+
+    bad = _garbled(_foxglove_log(tmp_path / "good.mcap"), tmp_path / "bad.mcap", "/tf")
+    out = tmp_path / "out.rrd"
+    rc = cli.main(["review", str(bad), "--rrd", str(out)])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert "12 message(s) skipped" in cap.err and "(12 messages; 12 skipped" in cap.out, cap
+    assert RrdReader(out).store() is not None  # finished: its manifest reads
+    assert "TextLog:text" in rrd_contents(out)["/log"]
+
+    out.write_bytes(b"an earlier recording")
+    with monkeypatch.context() as m:  # hand the importer everything again: Rerun cannot finish
+        real = review.salvage
+        m.setattr(review, "salvage", lambda src, dst, drop=(): real(src, dst))
+        rc, err = _review(bad, out, capsys)
+    assert rc == 2 and "Rerun did not finish the recording" in err and "nothing written" in err, err
+    assert out.read_bytes() == b"an earlier recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap", "good.mcap", "out.rrd"]
