@@ -686,6 +686,19 @@ def _trois(mission: Mission, path: Path, lines: dict[tuple, int]) -> list[TROI]:
     return trois
 
 
+class _DuplicateKey(ValueError):
+    """A JSON object naming one key twice (json keeps the last silently)."""
+
+
+def _json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
+
+
 def _csv_number(text: str) -> float:
     """A CSV cell as a number: float()'s syntax without its digit-group underscores (`1_0` is 10 to
     Python, and ambiguous to a person, as the mission file's YAML numbers are)."""
@@ -733,7 +746,9 @@ def load_prescan(src: Path) -> list[TROI]:
             out.append(_checked_troi(src, i, x, y, r, row.get("id") or "", problems))
     else:
         try:
-            doc = json.loads(text)
+            doc = json.loads(text, object_pairs_hook=_json_object)
+        except _DuplicateKey as e:
+            raise MissionError([f"{src}: key {shown(str(e))} given twice in one JSON object (which one the survey meant is not known)"]) from None
         except json.JSONDecodeError as e:
             raise MissionError([f"{src}:{e.lineno}: invalid JSON: {e.msg}"]) from e
         except RecursionError as e:

@@ -99,6 +99,11 @@ def test_prescan_geojson_huge_integer_null_id_and_nul_path(tmp_path, capsys):
     (tmp_path / "n.geojson").write_text(doc % ", ".join(feat.replace("X", "1.5").replace("ID", i) for i in ("null", '""')))
     _, trois = load_mission(_write(tmp_path, m.replace("PRE", "n.geojson")))
     assert [t.id for t in trois] == ["T00", "T01"]
+    # a key twice in one object: json kept the last silently (which radius the survey meant?)
+    (tmp_path / "d.geojson").write_text(doc % feat.replace("X", "1.5").replace("ID", '"A"').replace('"radius": 0.2', '"radius": 0.2, "radius": 2'))
+    rc = cli.main(["validate", str(_write(tmp_path, m.replace("PRE", "d.geojson")))])
+    line = _one_line(capsys.readouterr().err)
+    assert rc == 2 and "d.geojson" in line and "key 'radius' given twice" in line, line
     # a NUL in the prescan path: ValueError (embedded null byte) traceback
     rc = cli.main(["validate", str(_write(tmp_path, m.replace("PRE", '"a\\0b.csv"')))])
     line = _one_line(capsys.readouterr().err)
