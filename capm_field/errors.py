@@ -52,6 +52,11 @@ def finite_real(v: Any) -> bool:
     return abs(v) <= sys.float_info.max if isinstance(v, int) else math.isfinite(v)
 
 
+def not_a_file(p: Path, what: str) -> str:
+    """Why `p` (not `is_file()`) cannot be read as a `what` file."""
+    return f"is a directory, not a {what} file" if p.is_dir() else f"{what} file not found" if not p.exists() else "not a regular file"
+
+
 def check_output(path: str | None, option: str) -> None:
     """Fail fast (before a long bench) if `path` cannot be an output file: its directory must
     exist and be writable, and it must not be a directory itself. None: nothing to check."""

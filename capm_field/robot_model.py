@@ -15,6 +15,7 @@ from __future__ import annotations
 import importlib.metadata
 import math
 import os
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -23,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from .config import RobotConfig
-from .errors import UserError, shown
+from .errors import UserError, not_a_file, shown
 from .geometry import SE2, transform_matrix
 
 _URDF_IN_PACKAGE = "cmeel.prefix/share/example-robot-data/robots/z1_description/urdf/z1.urdf"
@@ -65,6 +66,22 @@ class BatchFK:
     points: np.ndarray  # (N, K, 3) points along the arm links, for keep-out / ground checks
 
 
+MAX_URDF_BYTES = 16 << 20  # the Z1's is 18 kB; meshes are separate files
+
+
+def _check_xml(urdf: Path) -> None:
+    """Malformed XML named with its line and column (urdfdom only says "does not contain a valid
+    URDF model" and prints its cause to the process's stderr)."""
+    try:
+        if urdf.stat().st_size > MAX_URDF_BYTES:
+            raise UserError(f"robot.arm.urdf: {urdf}: over {MAX_URDF_BYTES >> 20} MiB, not a robot description")
+        ET.parse(urdf)
+    except ET.ParseError as e:
+        raise UserError(f"robot.arm.urdf: {urdf}: not well-formed XML: {e}") from None
+    except OSError as e:
+        raise UserError(f"robot.arm.urdf: cannot read {urdf}: {e.strerror or e}") from None
+
+
 class RobotModel:
     """Kinematics of the whole robot, parameterised by a RobotConfig."""
 
@@ -75,8 +92,9 @@ class RobotModel:
         self.cfg = cfg or RobotConfig()
         urdf = Path(os.path.expanduser(self.cfg.arm.urdf)) if self.cfg.arm.urdf else default_urdf_path()
         if not urdf.is_file():
-            raise UserError(f"robot.arm.urdf: URDF file not found: {urdf}")
+            raise UserError(f"robot.arm.urdf: {not_a_file(urdf, 'URDF')}: {urdf}")
         self.urdf_path = urdf
+        _check_xml(urdf)
         try:
             full = pin.buildModelFromUrdf(str(urdf))
         except Exception as e:  # pinocchio raises plain exceptions on parse errors

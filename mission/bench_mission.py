@@ -21,7 +21,7 @@ import numpy as np
 
 from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
-from capm_field.errors import UserError, check_output, finite_real, shown, write_output
+from capm_field.errors import UserError, check_output, finite_real, not_a_file, shown, write_output
 from capm_field.planners import PlanningCore, make_planner
 from capm_field.reachability import get_maps
 from capm_field.robot_model import RobotModel
@@ -57,7 +57,7 @@ def _read_summary(p: Path, mission: Mission, mission_path: str, ids: list[str]) 
     """A run's summary.json (the fields used here, checked before the bench runs: a missing or
     mistyped one crashed after it) and the energy of each target it flamed, by id."""
     if not p.is_file():
-        raise UserError(f"--summary: file not found: {p}")
+        raise UserError(f"--summary: {not_a_file(p, 'summary')}: {p}")
     try:
         s = json.loads(p.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as e:

@@ -25,7 +25,7 @@ import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from capm_field.config import MIN_TROI_RADIUS, RobotConfig, StrictNumbers, TaskConfig, not_bool
-from capm_field.errors import UserError, shown
+from capm_field.errors import UserError, not_a_file, shown
 from capm_field.geometry import FIELD_EXTENT_M as FIELD_EXTENT
 from capm_field.geometry import SE2
 from capm_field.keystates import TROI
@@ -566,7 +566,7 @@ def load_mission(path: str | Path) -> tuple[Mission, list[TROI]]:
     """Parse and validate a mission file; returns the mission and its TROIs (listed or prescan)."""
     path = Path(path)
     if not path.is_file():
-        raise MissionError([f"{path}: {_not_a_file(path, 'mission')}"])
+        raise MissionError([f"{path}: {not_a_file(path, 'mission')}"])
     try:
         size = path.stat().st_size
         if size > MAX_MISSION_BYTES:  # a mission is a few kB; long TROI lists belong in a prescan file
@@ -710,7 +710,7 @@ def _csv_number(text: str) -> float:
 def load_prescan(src: Path) -> list[TROI]:
     """TROIs from a prescan file: CSV (x,y,r[,id]) or GeoJSON (Point features with radius|r)."""
     if not src.is_file():
-        raise MissionError([f"{src}: {_not_a_file(src, 'prescan')}"])
+        raise MissionError([f"{src}: {not_a_file(src, 'prescan')}"])
     problems: list[str] = []
     out: list[TROI] = []
     suffix = src.suffix.lower()
@@ -805,11 +805,6 @@ def _fill_ids(trois: list[TROI]) -> list[TROI]:
 def _check_count(src: Path, n: int) -> None:
     if n > MAX_TROIS:
         raise MissionError([f"{src}: {n} TROIs, more than one mission takes ({MAX_TROIS}): split the field"])
-
-
-def _not_a_file(p: Path, what: str) -> str:
-    """Why `p` (not `is_file()`) cannot be read as a `what` file."""
-    return f"is a directory, not a {what} file" if p.is_dir() else f"{what} file not found" if not p.exists() else "not a regular file"
 
 
 def _is_number(v: Any) -> bool:

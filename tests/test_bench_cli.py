@@ -233,3 +233,13 @@ def test_perception_failures_pools_several_seeds(tmp_path):
     for s in (0, 3):
         rows2 = json.loads((tmp_path / "pf2" / f"seed_{s}" / "cases.json").read_text())
         assert [(r["kind"], r["reason"], r["pixel"]) for r in rows2] == [(r["kind"], r["reason"], r["pixel"]) for r in rows[s]]
+
+
+def test_bench_mission_names_a_directory_given_as_summary(tiny_run, tmp_path, capsys):
+    """A directory as --summary was "file not found"."""
+    from capm_field import cli
+
+    mission, _ = tiny_run
+    assert cli.main(["bench-mission", str(mission), "--trials", "2", "--summary", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "--summary: is a directory, not a summary file" in err and len(err.strip().splitlines()) == 1, err

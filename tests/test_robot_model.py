@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from capm_field.config import ArmConfig, RobotConfig
 from capm_field.errors import UserError
 from capm_field.geometry import SE2
-from capm_field.robot_model import RobotModel
+from capm_field.robot_model import RobotModel, default_urdf_path
 
 
 def test_z1_loaded_from_urdf(robot):
@@ -45,6 +45,22 @@ def test_ik_pose_recovers_reachable_pose(robot):
 def test_missing_urdf_is_a_user_error():
     with pytest.raises(UserError, match="URDF file not found"):
         RobotModel(RobotConfig(arm=ArmConfig(urdf="/no/such/z1.urdf")))
+
+
+def test_a_directory_or_malformed_xml_as_urdf_says_what_is_wrong(tmp_path):
+    """A directory was "not found"; malformed XML was "does not contain a valid URDF model", its
+    cause printed by urdfdom to stderr only; an entity bomb is refused by the parser's limits."""
+    with pytest.raises(UserError, match="is a directory, not a URDF file"):
+        RobotModel(RobotConfig(arm=ArmConfig(urdf=str(tmp_path))))
+    cut = tmp_path / "cut.urdf"
+    cut.write_text(default_urdf_path().read_text()[:500])
+    with pytest.raises(UserError, match=r"cut.urdf: not well-formed XML: .*line \d+, column \d+"):
+        RobotModel(RobotConfig(arm=ArmConfig(urdf=str(cut))))
+    bomb = tmp_path / "bomb.urdf"
+    ents = "".join(f'<!ENTITY e{i} "{f"&e{i - 1};" * 10}">' for i in range(1, 10))
+    bomb.write_text(f'<?xml version="1.0"?><!DOCTYPE r [<!ENTITY e0 "{"x" * 80}">{ents}]><robot name="&e9;"/>')
+    with pytest.raises(UserError, match="not well-formed XML: limit on input amplification"):
+        RobotModel(RobotConfig(arm=ArmConfig(urdf=str(bomb))))
 
 
 def test_arm_base_follows_body_pose(robot):
