@@ -310,6 +310,28 @@ MAX_CONFIG_BYTES = 1 << 20
 MAX_CONFIG_DEPTH = 64  # a zenoh config nests < 10 deep; zenoh's JSON5 parser recurses (~20 000 levels crash it)
 
 
+_RUST_SOURCE = re.compile(r"\s*at /\S+\.rs:\d+\.?")
+_SERDE_MESSAGE = re.compile(r'Message \{ msg: "(?P<msg>.*?)", location: (?:Some\(Location \{ line: (?P<line>\d+), column: (?P<col>\d+) \}\)|None) \}')
+_PEST_ERROR = re.compile(r"^\s*-->\s*(?P<line>\d+):(?P<col>\d+).*?=\s*(?P<msg>[^\n]+?)\s*$", re.S)
+
+
+def zenoh_error_text(e: BaseException) -> str:
+    """zenoh's error as one line for a field engineer: without its Rust source path, and with
+    serde's / the JSON5 parser's debug structs read out (`line L, column C: what`)."""
+    text = _RUST_SOURCE.sub("", str(e))
+    m = _PEST_ERROR.match(text)
+    if m:
+        return f"line {m['line']}, column {m['col']}: {' '.join(m['msg'].split())}"
+    text = " ".join(text.split())
+    wrapped = re.fullmatch(r"\w+Err\((.*)\)", text)  # e.g. Json5Err(...): an enum variant's debug form
+    text = wrapped[1] if wrapped else text
+    m = _SERDE_MESSAGE.search(text)
+    if m:
+        where = f"line {m['line']}, column {m['col']}: " if m["line"] else ""
+        text = text[: m.start()] + where + m["msg"].replace('\\"', '"') + text[m.end():]
+    return text or type(e).__name__
+
+
 def _check_config_text(p: Path) -> None:
     """Refuse what zenoh's own parser does not survive: it runs in this process and overflows its
     stack (SIGSEGV, no exception) on brackets nested ~20 000 deep. Size first, then depth."""

@@ -22,7 +22,6 @@ import argparse
 import logging
 import math
 import os
-import re
 import signal
 import sys
 import threading
@@ -31,7 +30,7 @@ from typing import Any
 
 from capm_field.config import BodyConfig
 from capm_field.geometry import SE2, wrap_angle
-from drivers.body_protocol import LinkConfig, check_id, link_security
+from drivers.body_protocol import LinkConfig, check_id, link_security, zenoh_error_text
 from drivers.body_server import BackendState, BodyBackend, BodyServer, MoveStatus, ServerConfig, check_link_security
 from drivers.interfaces import EStopActive
 
@@ -335,8 +334,7 @@ def main(argv: list[str]) -> int:
     try:  # before touching the robot: a missing certificate or an unsecured endpoint stops here
         check_link_security(link_security(link.zenoh_config()), a.insecure)
     except Exception as e:  # noqa: BLE001 - OSError, ValueError, zenoh's ZError (endpoints, config)
-        msg = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", " ".join(str(e).split()))  # zenoh names its Rust source
-        print(f"capm-field spot-bridge: error: {msg[:400]}", file=sys.stderr)
+        print(f"capm-field spot-bridge: error: {zenoh_error_text(e)[:400]}", file=sys.stderr)
         return 2
     cfg = BodyConfig(max_speed=a.max_speed, max_yaw_rate=a.max_yaw_rate)
     try:

@@ -13,7 +13,6 @@ import importlib
 import json
 import logging
 import os
-import re
 import signal
 import sys
 import threading
@@ -41,16 +40,15 @@ def check_hardware_files(mission: Mission, mission_path: str | Path) -> None:
     zspec = getattr(mission.drivers, "zenoh", None)
     if zspec is None or not zspec.config_file:
         return
-    from drivers.body_protocol import load_config_file
+    from drivers.body_protocol import load_config_file, zenoh_error_text
     from drivers.zenoh_body import ZenohBodyConfig
 
     zcfg = zspec.config_file
     try:
         load_config_file(ZenohBodyConfig.from_spec(zspec, Path(mission_path).resolve().parent).link.config_file)
     except Exception as e:  # noqa: BLE001 - zenoh's parse errors are plain exceptions
-        msg = " ".join(str(e).split())
-        msg = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", msg)  # zenoh's messages name its Rust source file
-        raise MissionError([f"{mission.where('drivers', 'zenoh', 'config_file')}: drivers.zenoh.config_file {zcfg}: {msg[:300] or type(e).__name__}"]) from e
+        msg = zenoh_error_text(e)  # without zenoh's Rust source path and debug structs
+        raise MissionError([f"{mission.where('drivers', 'zenoh', 'config_file')}: drivers.zenoh.config_file {zcfg}: {msg[:300]}"]) from e
 
 
 def validate_main(argv: list[str]) -> int:

@@ -238,7 +238,31 @@ def test_spot_bridge_refuses_bad_options_before_touching_the_robot(monkeypatch, 
     args = ["--hostname", "spot", "--listen", "tcp/127.0.0.1:7447"] + extra
     assert spot_bridge.main(args) == 2
     err = capsys.readouterr().err
-    assert expect in err and ".rs:" not in err, err
+    assert expect in err and ".rs:" not in err and "Json5Err" not in err and "Message {" not in err, err
+
+
+@pytest.mark.parametrize(
+    "text, expect",
+    [
+        ('{ mode: "peer", transport: { link: { tx: { lease: "abc" } } } }', "line 1, column 51: error parsing number"),
+        ('{ mode: "peer",\n  bogus_key: 3 }', "line 2, column 3: unknown field `bogus_key`, expected one of"),
+        ('{ transport: { link: { tls: { root_ca_certificate: 5 } } } }', "invalid type: integer `5`, expected a string"),
+        ('{ mode: "peer" ', "line 1, column 9: expected"),
+    ],
+)
+def test_zenoh_config_errors_read_as_one_line_without_rust_debug_text(tmp_path, text, expect):
+    """zenoh's own parse errors (a real zenoh.Config.from_file) read out of serde's and the JSON5
+    parser's debug structs: `Message { msg: "...", location: Some(Location { line: .. }) } at
+    /root/.cargo/...rs:1484.`"""
+    from drivers.body_protocol import load_config_file, zenoh_error_text
+
+    f = tmp_path / "z.json5"
+    f.write_text(text)
+    with pytest.raises(Exception) as e:
+        load_config_file(f)
+    line = zenoh_error_text(e.value)
+    assert expect in line and "\n" not in line, line
+    assert not any(junk in line for junk in ("Message {", "Location", ".rs:", "-->")), line
 
 
 def test_spot_bridge_without_credentials_and_no_terminal_is_one_line(monkeypatch, capsys):
