@@ -15,6 +15,7 @@ when interrupted (with `"interrupted": true`), so a long batch loses nothing alr
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import os
@@ -32,6 +33,7 @@ from .errors import UserError, check_output, shown, write_output
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".jp2", ".pgm", ".ppm", ".pnm"}
 MAX_FILE_BYTES = 1 << 30  # 1 GiB: far above any camera's frame; a file this big is not a photo
+MAX_PIXELS = 200_000_000  # a 200 MP phone photo; decoded as 8-bit BGR that is 0.6 GB before any work
 MAX_COORD = 1e7  # px: no image comes near; keeps the ROI's arithmetic finite
 
 
@@ -122,6 +124,7 @@ def read_image(path: Path) -> np.ndarray:
         data = np.fromfile(str(path), np.uint8)  # (not cv2.imread: its failures say nothing)
     except OSError as e:
         raise ValueError(f"cannot read it: {e.strerror or e}") from None
+    _check_pixels(data)
     try:
         img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     except cv2.error as e:  # e.g. over OpenCV's pixel limit
@@ -129,6 +132,30 @@ def read_image(path: Path) -> np.ndarray:
     if img is None:
         raise ValueError("not an image OpenCV can decode" if data.size else "empty file")
     return img
+
+
+def _check_pixels(data: np.ndarray) -> None:
+    """Refuse an image of over MAX_PIXELS from its header, before it is decoded: a PNG of a few kB
+    can declare 20 000 × 20 000 px (2.5 GB in OpenCV before the detector said bad_image). Pillow
+    reads the header (from the first 16 MiB); a format or layout it does not read there is left to
+    OpenCV, whose own cap is 2^30 px."""
+    import re
+    import warnings
+
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Pillow's DecompressionBombWarning: the size is checked here
+        try:
+            with Image.open(io.BytesIO(data[: 16 << 20].tobytes())) as im:
+                pixels, dims = im.width * im.height, f"{im.width} × {im.height} px"
+        except Image.DecompressionBombError as e:  # over 2× Pillow's own limit (~179 Mpx)
+            m = re.search(r"\((\d+) pixels\)", str(e))
+            pixels, dims = (int(m[1]), f"{int(m[1]) / 1e6:.0f} Mpx") if m else (MAX_PIXELS + 1, "its size")
+        except Exception:  # noqa: BLE001 - not a format Pillow reads, or a header past 16 MiB
+            return
+    if pixels > MAX_PIXELS:
+        raise ValueError(f"{dims}, over the {MAX_PIXELS / 1e6:.0f} Mpx a frame or photo can be")
 
 
 def read_mask(path: str) -> np.ndarray:

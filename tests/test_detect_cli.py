@@ -75,6 +75,31 @@ def test_unreadable_files_are_reported_and_the_rest_still_answered(tmp_path, cap
     assert out.count("error:") == 4 and "1 centre(s) found, 0 without an answer, 4 with an error" in out
 
 
+def _png_header(w: int, h: int, rows: int = 8) -> bytes:
+    """A PNG declaring w × h RGB px whose data holds `rows` rows of zeros: a few kB."""
+    import zlib
+
+    def chunk(t: bytes, d: bytes) -> bytes:
+        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d))
+
+    idat = zlib.compress(b"\x00" * (1 + 3 * w) * rows)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)) + chunk(b"IDAT", idat)
+            + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("w, h", [(20_000, 20_000), (15_000, 14_000)])
+def test_an_image_declaring_too_many_pixels_is_refused_from_its_header(tmp_path, capsys, w, h):
+    """A PNG of a few kB declaring 20 000 × 20 000 px took 2.5 GB in OpenCV before the detector
+    said bad_image; now its header refuses it (above and below Pillow's own bomb limit)."""
+    (tmp_path / "bomb.png").write_bytes(_png_header(w, h))
+    rc, out, _ = run(capsys, str(tmp_path / "bomb.png"))
+    assert rc == 2 and "over the 200 Mpx a frame or photo can be" in out, out
+    with pytest.raises(ValueError, match="Mpx a frame or photo"):
+        detect_cli.read_image(tmp_path / "bomb.png")
+    (tmp_path / "ok.png").write_bytes(_png_header(640, 480, rows=480))  # a whole small one still reads
+    assert detect_cli.read_image(tmp_path / "ok.png").shape == (480, 640, 3)
+
+
 def test_exif_orientation_is_applied_as_the_photo_is_shown(tmp_path, capsys):
     img = cv2.imread(str(FIX / "grass_tuft.jpg"))
     ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 100])
