@@ -20,6 +20,27 @@ settings.register_profile("ci", derandomize=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
+@pytest.fixture
+def cli_run(capsys):
+    """`capm-field ARGS` in this process, answered as `subprocess.run(..., capture_output=True,
+    text=True)` would. No interpreter start-up and imports (~1.7 s a subprocess call): for tests of
+    refusals; end-to-end runs use a subprocess."""
+    import subprocess
+
+    from capm_field import cli
+
+    def run(args: list[str]) -> subprocess.CompletedProcess:
+        capsys.readouterr()
+        try:
+            rc = cli.main(args)
+        except SystemExit as e:  # argparse's usage errors
+            rc = e.code if isinstance(e.code, int) else 1
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(args, rc, out, err)
+
+    return run
+
+
 @pytest.fixture(scope="session")
 def robot() -> RobotModel:
     return RobotModel(RobotConfig())

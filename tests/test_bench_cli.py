@@ -80,8 +80,8 @@ def test_bench_cli_json(tmp_path):
         (["bench", "--trials", "2", "--json", f"{__file__}/x.json"], f"{__file__} is a file, not a directory"),
     ],
 )
-def test_bad_input_is_one_line_exit_2(args, needle):
-    r = subprocess.run(CLI + args + ["--quiet"] if args[0] == "bench" else CLI + args, capture_output=True, text=True)
+def test_bad_input_is_one_line_exit_2(cli_run, args, needle):
+    r = cli_run(args + ["--quiet"] if args[0] == "bench" else args)
     assert r.returncode == 2
     assert needle in r.stderr
     assert "Traceback" not in r.stderr
@@ -100,9 +100,9 @@ def test_bad_input_is_one_line_exit_2(args, needle):
         (["--mpoi-offset", "inf"], "--mpoi-offset must be a finite distance"),
     ],
 )
-def test_regions_refuses_a_bad_raster_before_drawing(tmp_path, args, needle):
+def test_regions_refuses_a_bad_raster_before_drawing(cli_run, tmp_path, args, needle):
     out = tmp_path / "r.png"
-    r = subprocess.run(CLI + ["regions", "--out", str(out)] + args, capture_output=True, text=True, timeout=120)
+    r = cli_run(["regions", "--out", str(out)] + args)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not out.exists()
 
@@ -192,15 +192,14 @@ def _other_mission(s: dict) -> None:
         (_set(["targets"], []), "is from another mission: its 0 target(s)"),
     ],
 )
-def test_bench_mission_refuses_a_bad_summary_in_one_line_before_the_bench(tiny_run, tmp_path, edit, needle):
+def test_bench_mission_refuses_a_bad_summary_in_one_line_before_the_bench(cli_run, tiny_run, tmp_path, edit, needle):
     mission, summary = tiny_run
     s = json.loads(summary.read_text())
     s["targets"][0]["flamed"] = True
     edit(s)
     bad = tmp_path / "summary.json"
     bad.write_text(json.dumps(s))
-    r = subprocess.run(CLI + ["bench-mission", str(mission), "--trials", "2", "--summary", str(bad)],
-                       capture_output=True, text=True, timeout=120)
+    r = cli_run(["bench-mission", str(mission), "--trials", "2", "--summary", str(bad)])
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not r.stdout  # refused before the bench printed anything
     if edit is _other_mission:
@@ -211,13 +210,13 @@ def test_perception_failures_pools_several_seeds(tmp_path):
     """bench/perception_failures.py --seeds: each seed's cases under its own directory, one line
     per seed and a pooled line whose counts are the seeds' sums."""
     root = Path(__file__).resolve().parents[1]
-    out = subprocess.run([sys.executable, str(root / "bench" / "perception_failures.py"), "--scenes", "4", "--seeds", "0,3",
+    out = subprocess.run([sys.executable, str(root / "bench" / "perception_failures.py"), "--scenes", "2", "--seeds", "0,3",
                           "--bare-share", "0.25", "--save", "none", "--out", str(tmp_path / "pf"),
                           "--cache", str(tmp_path / "cache" / "{seed}")],
                          capture_output=True, text=True, timeout=300, cwd=root)
     assert out.returncode == 0, out.stderr
     rows = {s: json.loads((tmp_path / "pf" / f"seed_{s}" / "cases.json").read_text()) for s in (0, 3)}
-    assert all(len(r) == 4 for r in rows.values())
+    assert all(len(r) == 2 for r in rows.values())
     assert (tmp_path / "cache" / "3").is_dir()
     lines = out.stdout.splitlines()
     assert [ln.split(":")[0] for ln in lines if ln.startswith("seed ")] == ["seed 0", "seed 3"]
@@ -225,7 +224,7 @@ def test_perception_failures_pools_several_seeds(tmp_path):
     n_weed = sum(r["kind"] != "bare" for rs in rows.values() for r in rs)
     assert f"weed {n_weed}:" in pooled, pooled
     # a --cache without '{seed}' is split per seed: seed 3 must not read seed 0's views (named by case index)
-    again = subprocess.run([sys.executable, str(root / "bench" / "perception_failures.py"), "--scenes", "4", "--seeds", "0,3",
+    again = subprocess.run([sys.executable, str(root / "bench" / "perception_failures.py"), "--scenes", "2", "--seeds", "0,3",
                             "--bare-share", "0.25", "--save", "none", "--out", str(tmp_path / "pf2"),
                             "--cache", str(tmp_path / "shared")], capture_output=True, text=True, timeout=300, cwd=root)
     assert again.returncode == 0, again.stderr
@@ -235,11 +234,8 @@ def test_perception_failures_pools_several_seeds(tmp_path):
         assert [(r["kind"], r["reason"], r["pixel"]) for r in rows2] == [(r["kind"], r["reason"], r["pixel"]) for r in rows[s]]
 
 
-def test_bench_mission_names_a_directory_given_as_summary(tiny_run, tmp_path, capsys):
+def test_bench_mission_names_a_directory_given_as_summary(cli_run, tiny_run, tmp_path):
     """A directory as --summary was "file not found"."""
-    from capm_field import cli
-
-    mission, _ = tiny_run
-    assert cli.main(["bench-mission", str(mission), "--trials", "2", "--summary", str(tmp_path)]) == 2
-    err = capsys.readouterr().err
-    assert "--summary: is a directory, not a summary file" in err and len(err.strip().splitlines()) == 1, err
+    r = cli_run(["bench-mission", str(tiny_run[0]), "--trials", "2", "--summary", str(tmp_path)])
+    assert r.returncode == 2 and "--summary: is a directory, not a summary file" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1

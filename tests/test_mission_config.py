@@ -89,13 +89,13 @@ def test_every_problem_reported_at_once(tmp_path):
     assert len(ei.value.problems) == 3
 
 
-def test_run_with_bad_mission_writes_nothing(tmp_path):
+def test_run_with_bad_mission_writes_nothing(cli_run, tmp_path):
     p = _write(tmp_path, GOOD.replace("r: 0.2", "r: 7"))
     out = tmp_path / "out"
-    r = subprocess.run(CLI + ["run", str(p), "--out", str(out), "--quiet"], capture_output=True, text=True)
+    r = cli_run(["run", str(p), "--out", str(out), "--quiet"])
     assert r.returncode == 2 and "field.trois.0.r" in r.stderr and "Traceback" not in r.stderr
     assert not out.exists()
-    r = subprocess.run(CLI + ["run", str(tmp_path / "missing.yaml")], capture_output=True, text=True)
+    r = cli_run(["run", str(tmp_path / "missing.yaml")])
     assert r.returncode == 2 and "not found" in r.stderr
 
 
@@ -182,57 +182,57 @@ def test_malformed_prescan_files_are_reported_per_feature(tmp_path):
     assert trois == [TROI(1.0, 2.0, 0.2, "A")]
 
 
-def test_unusable_output_paths_and_summaries_are_clear_errors(tmp_path):
+def test_unusable_output_paths_and_summaries_are_clear_errors(cli_run, tmp_path):
     """`run --out` that cannot be created and `bench-mission --summary` that is not a summary
     end with exit 2 and one line, not a traceback (the summary is checked before the bench)."""
     p = _write(tmp_path, GOOD)
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    r = subprocess.run(CLI + ["run", str(p), "--out", str(blocker / "sub"), "--quiet"], capture_output=True, text=True)
+    r = cli_run(["run", str(p), "--out", str(blocker / "sub"), "--quiet"])
     assert r.returncode == 2 and "cannot create the output directory" in r.stderr and "Traceback" not in r.stderr
     for content in (b"\xff\xfe", b'{"targets": 5}', b"[]"):
         (tmp_path / "s.json").write_bytes(content)
-        r = subprocess.run(CLI + ["bench-mission", str(p), "--summary", str(tmp_path / "s.json")], capture_output=True, text=True)
+        r = cli_run(["bench-mission", str(p), "--summary", str(tmp_path / "s.json")])
         assert r.returncode == 2 and "is not a capm-field run's summary.json" in r.stderr and "Traceback" not in r.stderr
         assert "bench: energy" not in r.stdout
 
 
-def test_run_refuses_bad_faults_seeds_and_configs_before_writing_anything(tmp_path):
+def test_run_refuses_bad_faults_seeds_and_configs_before_writing_anything(cli_run, tmp_path):
     """A bad --faults or --seed is refused before the output exists (a leftover run.mcap used to
     block the corrected run); a hardware mission's zenoh config is checked by `run` as by
     `validate`, before any driver opens (was: exit 1 from the CAN bus, config never checked)."""
     p = _write(tmp_path, GOOD)
     for extra, msg in ((["--faults", "meteor@0"], "fault kind 'meteor' unknown"), (["--seed", "-1"], "must be in [0, 2**63 - 1]")):
         out = tmp_path / "out"
-        r = subprocess.run(CLI + ["run", str(p), "--out", str(out), "--quiet"] + extra, capture_output=True, text=True)
+        r = cli_run(["run", str(p), "--out", str(out), "--quiet"] + extra)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
         assert not out.exists()
     text = (EXAMPLES / "hardware_template.yaml").read_text().replace("prescan: prescan.csv", "trois: [{x: 1, y: 1, r: 0.2}]")
     hw = _write(tmp_path, text, "hw.yaml")
     (tmp_path / "zenoh-client.json5").write_text("{ not json5 [[[")
     out = tmp_path / "hwout"
-    r = subprocess.run(CLI + ["run", str(hw), "--out", str(out), "--quiet"], capture_output=True, text=True)
+    r = cli_run(["run", str(hw), "--out", str(out), "--quiet"])
     assert r.returncode == 2 and "drivers.zenoh.config_file" in r.stderr and ".rs:" not in r.stderr, r.stderr
     assert not out.exists()
-    r = subprocess.run(CLI + ["run", str(hw), "--out", str(out), "--quiet", "--seed", "1"], capture_output=True, text=True)
+    r = cli_run(["run", str(hw), "--out", str(out), "--quiet", "--seed", "1"])
     assert r.returncode == 2 and not out.exists()
 
 
-def test_validate_opens_the_zenoh_config_of_a_hardware_mission(tmp_path):
+def test_validate_opens_the_zenoh_config_of_a_hardware_mission(cli_run, tmp_path):
     """`validate` loads drivers.zenoh.config_file as a hardware run would: a missing file, a
     file that is not JSON5, or a certificate it names that is not there is an error (exit 2)."""
     text = (EXAMPLES / "hardware_template.yaml").read_text().replace("prescan: prescan.csv", "trois: [{x: 1, y: 1, r: 0.2}]")
     p = _write(tmp_path, text)
-    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    r = cli_run(["validate", str(p)])
     assert r.returncode == 2 and "zenoh config file not found" in r.stderr
     (tmp_path / "zenoh-client.json5").write_text("{ not json5 [[[")
-    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    r = cli_run(["validate", str(p)])
     assert r.returncode == 2 and "drivers.zenoh.config_file" in r.stderr and "Traceback" not in r.stderr
     (tmp_path / "zenoh-client.json5").write_text((EXAMPLES / "zenoh-client.json5").read_text())
-    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    r = cli_run(["validate", str(p)])
     assert r.returncode == 2 and "names a missing file" in r.stderr and "ca.pem" in r.stderr
     (tmp_path / "zenoh-client.json5").write_text("{}")
-    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    r = cli_run(["validate", str(p)])
     assert r.returncode == 0, r.stderr
 
 
@@ -245,7 +245,7 @@ def test_generated_ids_never_collide_and_directories_are_named(tmp_path):
         load_mission(tmp_path / "d.yaml")
 
 
-def test_validate_reads_the_tls_files_a_hardware_mission_names(tmp_path):
+def test_validate_reads_the_tls_files_a_hardware_mission_names(cli_run, tmp_path):
     """Certificates and keys must be PEM of their kind and each key must go with its certificate:
     otherwise every TLS handshake on the robot would fail, found only there (was: 'ok' when the
     files merely existed)."""
@@ -256,15 +256,15 @@ def test_validate_reads_the_tls_files_a_hardware_mission_names(tmp_path):
     p = _write(tmp_path, text)
     cfg = tmp_path / "zenoh-client.json5"
     cfg.write_text((EXAMPLES / "zenoh-client.json5").read_text())
-    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    r = cli_run(["validate", str(p)])
     assert r.returncode == 0, r.stderr
     good = (tmp_path / "certs" / "capm-commander.key").read_bytes()
     (tmp_path / "certs" / "capm-commander.key").write_bytes((tmp_path / "certs" / "capm-observer.key").read_bytes())
-    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    r = cli_run(["validate", str(p)])
     assert r.returncode == 2 and "does not go with" in r.stderr and "Traceback" not in r.stderr, r.stderr
     (tmp_path / "certs" / "capm-commander.key").write_bytes(good)
     (tmp_path / "certs" / "ca.pem").write_text("this is not a certificate\n")
-    r = subprocess.run(CLI + ["validate", str(p)], capture_output=True, text=True)
+    r = cli_run(["validate", str(p)])
     assert r.returncode == 2 and "is not a PEM certificate" in r.stderr, r.stderr
 
 
@@ -274,12 +274,12 @@ def test_huge_mission_file_is_refused_at_once(tmp_path):
         load_mission(p)
 
 
-def test_validate_warns_of_an_unprotected_robot_link_and_checks_output_and_bitrate(tmp_path):
+def test_validate_warns_of_an_unprotected_robot_link_and_checks_output_and_bitrate(cli_run, tmp_path):
     hw = "field: {trois: [{x: 1, y: 1, r: 0.2}]}\nstart: {x: 0, y: 0}\ndrivers:\n  kind: hardware\n" \
          "  zenoh: {connect: ['tcp/10.0.0.1:7447']}\n  can: {interface: virtual, channel: c0, bitrate: BR}\n"
-    r = subprocess.run(CLI + ["validate", str(_write(tmp_path, hw.replace("BR", "500000")))], capture_output=True, text=True)
+    r = cli_run(["validate", str(_write(tmp_path, hw.replace("BR", "500000")))])
     assert r.returncode == 0 and "warning: drivers.zenoh: tcp/10.0.0.1:7447 without a config_file: no TLS" in r.stderr, r.stderr
-    r = subprocess.run(CLI + ["validate", str(_write(tmp_path, hw.replace("BR", "-5")))], capture_output=True, text=True)
+    r = cli_run(["validate", str(_write(tmp_path, hw.replace("BR", "-5")))])
     assert r.returncode == 2 and "drivers.can.bitrate" in r.stderr
     (tmp_path / "afile").write_text("x")
     r = subprocess.run(CLI + ["validate", str(_write(tmp_path, GOOD + "output: {dir: afile}\n"))], capture_output=True, text=True, cwd=tmp_path)
