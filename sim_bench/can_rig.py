@@ -37,6 +37,7 @@ class CanBench:
         heartbeat_timeout: float = 0.3,
         with_arm: bool = True,
         with_igniter: bool = True,
+        arm_state_timeout: float | None = None,
     ) -> None:
         self.robot = robot or RobotModel()
         self.bus = CanBusConfig(interface="virtual", channel=unique_channel())
@@ -46,7 +47,8 @@ class CanBench:
         self.igniter: CanIgniter | None = None
         try:
             if with_arm:
-                self.arm = CanArm(CanArmConfig(bus=self.bus, heartbeat=hb), robot=self.robot)
+                extra = {} if arm_state_timeout is None else {"state_timeout": arm_state_timeout}
+                self.arm = CanArm(CanArmConfig(bus=self.bus, heartbeat=hb, **extra), robot=self.robot)
             if with_igniter:
                 self.igniter = CanIgniter(CanIgniterConfig(bus=self.bus, heartbeat=hb))
         except BaseException:
