@@ -34,22 +34,38 @@ output: {{dir: {out}, {output}}}
 LENS = "robot: {camera: {distortion: [-0.25, 0.08, 0.0005, -0.0008, -0.01]}}\n"
 
 
-def _run(d: Path, output: str, robot: str = "") -> Path:
+def _start(d: Path, output: str, robot: str = "") -> tuple[subprocess.Popen, Path]:
     m = d / "m.yaml"
     m.write_text(MISSION.format(out=d / "out", output=output, robot=robot))
-    r = subprocess.run(CLI + ["run", str(m), "--quiet"], capture_output=True, text=True, timeout=240)
-    assert r.returncode == 0, r.stderr
-    return d / "out"
+    return subprocess.Popen(CLI + ["run", str(m), "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True), d / "out"
+
+
+def _run(d: Path, output: str, robot: str = "") -> Path:
+    proc, out = _start(d, output, robot)
+    _, err = proc.communicate(timeout=240)
+    assert proc.returncode == 0, err
+    return out
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, Path]:
-    """The same bench mission logged as PNG, as JPEG, and as PNG through a distorting lens."""
-    return {
-        "png": _run(tmp_path_factory.mktemp("png"), "image_format: png"),
-        "jpeg": _run(tmp_path_factory.mktemp("jpeg"), "image_format: jpeg"),
-        "lens": _run(tmp_path_factory.mktemp("lens"), "image_format: png", LENS),
+    """The same bench mission logged as PNG, as JPEG, and as PNG through a distorting lens (the three
+    runs side by side: each is mostly one core's work)."""
+    started = {
+        "png": _start(tmp_path_factory.mktemp("png"), "image_format: png"),
+        "jpeg": _start(tmp_path_factory.mktemp("jpeg"), "image_format: jpeg"),
+        "lens": _start(tmp_path_factory.mktemp("lens"), "image_format: png", LENS),
     }
+    try:
+        for proc, _ in started.values():
+            _, err = proc.communicate(timeout=240)
+            assert proc.returncode == 0, err
+    finally:
+        for proc, _ in started.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    return {k: out for k, (_, out) in started.items()}
 
 
 def _replay(capsys, run: Path, tmp_path: Path, *extra: str) -> tuple[int, dict | None, str, str]:

@@ -92,7 +92,7 @@ def test_R_o_membership_agrees_with_direct_view_check(robot, task, regions, maps
 
 
 def test_maps_cache_round_trip(tmp_path, robot):
-    rc = ReachabilityConfig(joint_steps=(16, 16, 9, 5), roll_steps=2, cache_dir=str(tmp_path), troi_radius_max=0.3, troi_radius_step=0.05)
+    rc = ReachabilityConfig(joint_steps=(8, 8, 5, 3), roll_steps=2, radial_step=0.04, cache_dir=str(tmp_path), troi_radius_max=0.3, troi_radius_step=0.05)
     task = TaskConfig()
     built = get_maps(robot, task, rc)
     files = list(tmp_path.glob("reach-*.npz"))
