@@ -175,13 +175,22 @@ def test_field_planner_mission(tmp_path):
     walk to a midpoint x_kmax (fewer body moves than per-target CAPM on the same field)."""
     from mission.log_checks import check_ignition_invariant
 
-    moves = {}
+    moves, procs = {}, {}
+    for planner in ("field", "c"):  # the two runs side by side
+        m = tmp_path / f"{planner}.yaml"
+        m.write_text(MISSION.format(planner=planner, seed=5, out=tmp_path / planner))
+        procs[planner] = subprocess.Popen(CLI + ["run", str(m), "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for proc in procs.values():
+            _, err = proc.communicate(timeout=240)
+            assert proc.returncode == 0, err
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
     for planner in ("field", "c"):
         out = tmp_path / planner
-        m = tmp_path / f"{planner}.yaml"
-        m.write_text(MISSION.format(planner=planner, seed=5, out=out))
-        r = subprocess.run(CLI + ["run", str(m), "--quiet"], capture_output=True, text=True, timeout=240)
-        assert r.returncode == 0, r.stderr
         s = json.loads((out / "summary.json").read_text())
         assert all(t["flamed"] or t["reason"] for t in s["targets"])
         assert check_ignition_invariant(out / "run.mcap").ok
