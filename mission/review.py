@@ -380,7 +380,8 @@ def _check_rrd(part: Path, out: Path) -> None:
             warnings.simplefilter("ignore")  # "no footer/manifest": the error below says it
             RrdReader(part).store()
     except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
-        why = " ".join(str(e).replace(str(part), "").split())[:200]
+        why = ("no footer: its file sink failed to end the stream, see Rerun's error above" if "footer" in str(e)
+               else " ".join(str(e).replace(str(part), "").split())[:200])
         raise UserError(f"--rrd {out}: Rerun did not finish the recording ({why}); nothing written") from None
 
 

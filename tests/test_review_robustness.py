@@ -386,6 +386,6 @@ def test_payloads_rerun_cannot_decode_are_left_out_and_an_unfinished_recording_i
         real = review.salvage
         m.setattr(review, "salvage", lambda src, dst, drop=(): real(src, dst))
         rc, err = _review(bad, out, capsys)
-    assert rc == 2 and "Rerun did not finish the recording" in err and "nothing written" in err, err
+    assert rc == 2 and "Rerun did not finish the recording (no footer" in err and "nothing written" in err, err
     assert out.read_bytes() == b"an earlier recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap", "good.mcap", "out.rrd"]
