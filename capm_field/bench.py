@@ -206,7 +206,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--radius-range", default="0.2,0.3", help="TROI radius range r_w (m): MIN,MAX")
     ap.add_argument("--urdf", help="Z1 URDF (default: the one shipped in example-robot-data)")
     ap.add_argument("--tiebreak", choices=("first", "uniform", "nearest"), default="uniform", help="planner (a) among equal stops")
-    ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--workers", type=cli_args.workers, default=min(2, os.cpu_count() or 1), help="processes (1-64)")
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     ap.add_argument("--readings", action="store_true", help="run every reading of the paper's ambiguities and compare")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -52,3 +52,18 @@ def seed(text: str) -> int:
     if not 0 <= n <= MAX_SEED:
         raise argparse.ArgumentTypeError(f"must be in [0, 2**63 - 1] (got {text[:30]})")
     return n
+
+
+MAX_WORKERS = 64  # processes a bench forks; far above any machine this runs on (each holds the maps)
+
+
+def workers(text: str) -> int:
+    """argparse type of --workers: 1..MAX_WORKERS processes (100 000 forked as many, each a copy
+    of the planning core, before the first result; 0 and below ran one quietly)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text[:30]!r}") from None
+    if not 1 <= n <= MAX_WORKERS:
+        raise argparse.ArgumentTypeError(f"must be in [1, {MAX_WORKERS}] (got {text[:30]})")
+    return n

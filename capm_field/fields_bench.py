@@ -192,7 +192,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--distance", choices=("euclidean", "squared"), default="euclidean")
     ap.add_argument("--sigma", choices=("variance", "std"), default="variance")
     ap.add_argument("--latency-fields", type=int, default=3, help="50-TROI fields timed for plan latency (0: skip)")
-    ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--workers", type=cli_args.workers, default=min(2, os.cpu_count() or 1), help="processes (1-64)")
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--quiet", action="store_true")
     return ap

@@ -158,6 +158,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 MIN_DURATION_S = 0.5  # a few state periods and command round trips at least
+MAX_DURATION_S = 86_400.0  # a day per transport; beyond it a typo (1e9 s ran as asked)
 
 
 def _positive(s: str) -> float:
@@ -165,8 +166,8 @@ def _positive(s: str) -> float:
         v = float(s)
     except ValueError:
         raise argparse.ArgumentTypeError(f"--duration must be a number of seconds, not {s!r}") from None
-    if not (v >= MIN_DURATION_S and math.isfinite(v)):  # shorter: no round trip or state gap to measure
-        raise argparse.ArgumentTypeError(f"--duration must be ≥ {MIN_DURATION_S:g} s, not {s}")
+    if not (MIN_DURATION_S <= v <= MAX_DURATION_S):  # shorter: no round trip or state gap to measure (nan fails too)
+        raise argparse.ArgumentTypeError(f"--duration must be in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}] s, not {s[:30]}")
     return v
 
 

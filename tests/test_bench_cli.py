@@ -78,6 +78,10 @@ def test_bench_cli_json(tmp_path):
         # an empty file name was taken for "not given"; a file where a directory should be
         (["bench-mission", "mission/examples/bench_demo.yaml", "--trials", "2", "--json", ""], "--json: empty file name"),
         (["bench", "--trials", "2", "--json", f"{__file__}/x.json"], f"{__file__} is a file, not a directory"),
+        # 100 000 workers forked as many copies of the planning core; 0 ran one quietly
+        (["bench", "--trials", "2", "--workers", "100000"], "--workers: must be in [1, 64]"),
+        (["bench-fields", "--workers", "0"], "--workers: must be in [1, 64]"),
+        (["bench-drivers", "--duration", "1e9", "--json", "/tmp/never.json"], "--duration must be in [0.5, 86400] s"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(cli_run, args, needle):
