@@ -434,13 +434,24 @@ def _run_child(cmd: list[str]) -> int:
                 proc.wait()
 
 
+def _port(text: str) -> int:
+    """A TCP port, 1–65535 (0 would let the viewer pick one, and the address printed would be wrong)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text[:30]!r}") from None
+    if not 1 <= n <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 1-65535, got {text[:30]}")
+    return n
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="capm-field review", description=__doc__.splitlines()[0])
     ap.add_argument("run", help="run log (run.mcap) or its run directory, also one cut short by a crash")
     ap.add_argument("--rrd", help="write a Rerun recording to this file (headless, no viewer)")
     ap.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of the native viewer")
-    ap.add_argument("--web-port", type=int, default=9090, help="HTTP port of the web viewer (default 9090)")
-    ap.add_argument("--grpc-port", type=int, default=9876, help="gRPC port the web viewer reads from (default 9876)")
+    ap.add_argument("--web-port", type=_port, default=9090, help="HTTP port of the web viewer (default 9090)")
+    ap.add_argument("--grpc-port", type=_port, default=9876, help="gRPC port the web viewer reads from (default 9876)")
     args = ap.parse_args(argv)
 
     if args.rrd is not None:

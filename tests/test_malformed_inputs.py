@@ -210,6 +210,13 @@ def test_review_skips_foreign_and_undecodable_messages(tmp_path, capsys):
     assert "4 message(s) skipped" in cap.err and "Traceback" not in cap.err and "(3 messages; 4 skipped" in cap.out, cap
 
 
+@pytest.mark.parametrize("flag, value", [("--web-port", "99999"), ("--grpc-port", "0"), ("--web-port", "x")])
+def test_review_refuses_a_port_no_viewer_can_take(cli_run, tmp_path, flag, value):
+    """--web-port 99999 printed a viewer address, then the viewer failed with its own usage text."""
+    r = cli_run(["review", str(tmp_path), "--web", flag, value])
+    assert r.returncode == 2 and f"argument {flag}:" in r.stderr and "web viewer" not in r.stdout, r
+
+
 def test_review_to_a_directory_is_one_line(tmp_path, capsys):
     p = _mcap(tmp_path / "r.mcap", [("/other", "json", "x", "jsonschema", b"{}", [b"{}"])])
     assert cli.main(["review", str(p), "--rrd", str(tmp_path)]) == 2
