@@ -231,8 +231,7 @@ def _core_for(task: TaskConfig, progress: bool, urdf: str | None = None) -> Plan
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
     check_output(a.json, "--json")
-    if a.trials < 1:
-        raise UserError(f"--trials must be ≥ 1, got {a.trials}")
+    cli_args.check_count(a.trials, 1, 1_000_000, "--trials")
     if a.gamma < 0:
         raise UserError(f"--gamma must be ≥ 0, got {a.gamma}")
     planners = cli_args.names(a.planners, ALL_PLANNERS, "--planners")

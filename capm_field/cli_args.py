@@ -9,14 +9,20 @@ from .errors import UserError
 
 
 def names(text: str, allowed: Iterable[str], flag: str) -> tuple[str, ...]:
-    """'a,b,c' → ('a', 'b', 'c'), each one of `allowed`."""
+    """'a,b,c' → ('a', 'b', 'c'), each one of `allowed`, each once (`a,a` crashed the table after
+    the whole bench had run; `a,,b` dropped the empty item silently)."""
     allowed = tuple(allowed)
-    out = tuple(p.strip() for p in text.split(",") if p.strip())
-    for p in out:
-        if p not in allowed:
-            raise UserError(f"unknown planner {p!r} in {flag}; choose from {', '.join(allowed)}")
-    if not out:
+    out = tuple(p.strip() for p in text.split(","))
+    if not any(out):
         raise UserError(f"{flag}: empty list")
+    for p in out:
+        if not p:
+            raise UserError(f"{flag}: an empty item in {text[:80]!r}")
+        if p not in allowed:
+            raise UserError(f"unknown planner {p[:40]!r} in {flag}; choose from {', '.join(allowed)}")
+    twice = next((p for i, p in enumerate(out) if p in out[:i]), None)
+    if twice:
+        raise UserError(f"{flag}: {twice!r} given twice")
     return out
 
 
@@ -67,3 +73,12 @@ def workers(text: str) -> int:
     if not 1 <= n <= MAX_WORKERS:
         raise argparse.ArgumentTypeError(f"must be in [1, {MAX_WORKERS}] (got {text[:30]})")
     return n
+
+
+def check_count(value: int, lo: int, hi: int, flag: str) -> int:
+    """An integer option within [lo, hi]: 10**30 trials or scenes ran on past any patience, or
+    overflowed numpy (a traceback); a negative count was read as 0."""
+    if not lo <= value <= hi:
+        bound = f"{hi:_}".replace("_", " ")  # 1 000 000
+        raise UserError(f"{flag} must be in [{lo}, {bound}], got {str(value)[:30]}")
+    return value

@@ -78,13 +78,13 @@ def parse_roi(text: str) -> Roi:
     v = _numbers(text, "--roi")
     if len(v) == 3:
         u, vv, r = v
-        if not r > 0:
-            raise UserError(f"--roi: the radius must be positive, got {r:g}")
+        if not r >= 1:
+            raise UserError(f"--roi: the radius must be at least 1 px, got {r:g}")
         return Roi.from_ellipse((u, vv), (r, r))
     if len(v) == 5:
         u, vv, w, h, ang = v
-        if not (w > 0 and h > 0):
-            raise UserError(f"--roi: width and height must be positive, got {w:g} and {h:g}")
+        if not (w >= 2 and h >= 2):
+            raise UserError(f"--roi: width and height must be at least 2 px, got {w:g} and {h:g}")
         return Roi.from_ellipse((u, vv), (w / 2, h / 2), ang)
     raise UserError(f"--roi: give U,V,R (a circle) or U,V,W,H,ANGLE (an ellipse), got {len(v)} numbers")
 

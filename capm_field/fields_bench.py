@@ -198,13 +198,20 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+MIN_DENSITY = 1e-3  # weeds/m²: one per 1000 m²; 20 TROIs then span ~140 m
+
+
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
     check_output(a.json, "--json")
-    if a.fields < 1 or a.troi < 1:
-        raise UserError("--fields and --troi must be ≥ 1")
+    cli_args.check_count(a.fields, 1, 10_000, "--fields")
+    cli_args.check_count(a.troi, 1, 5_000, "--troi")  # a mission's own limit (mission/config.py MAX_TROIS)
+    cli_args.check_count(a.single_trials, 0, 1_000_000, "--single-trials")
+    cli_args.check_count(a.latency_fields, 0, 1_000, "--latency-fields")
     planners = cli_args.names(a.planners, PLANNERS, "--planners")
     densities = cli_args.positive_floats(a.densities, "--densities")
+    if min(densities) < MIN_DENSITY:  # 1e-300 /m²: a field of 1e301 m², energies of 1e150 and nan
+        raise UserError(f"--densities must be ≥ {MIN_DENSITY:g} weeds/m², got {min(densities):g}")
     task = build(TaskConfig, "task", gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma)
     core = table_bench._core_for(task, not a.quiet)
     fopts = FieldOptions(in_troi=a.prior == "in-troi")

@@ -38,6 +38,9 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+MAX_MPOI_OFFSET = 10.0  # m: X̄_w that far from X_w is another field (the regions reach ~1.3 m)
+
+
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
     check_output(a.out, "--out")
@@ -47,8 +50,8 @@ def main(argv: list[str]) -> int:
     lo, hi = RESOLUTION_RANGE
     if not lo <= a.resolution <= hi:
         raise UserError(f"--resolution must be in [{lo:g}, {hi:g}] m, got {a.resolution:g}")
-    if not (math.isfinite(a.mpoi_offset) and a.mpoi_offset >= 0):  # nan drew a PNG without R_m
-        raise UserError(f"--mpoi-offset must be a finite distance ≥ 0 (m), got {a.mpoi_offset:g}")
+    if not 0 <= a.mpoi_offset <= MAX_MPOI_OFFSET:  # nan drew a PNG without R_m; 1e308 overflowed (warnings)
+        raise UserError(f"--mpoi-offset must be a finite distance in [0, {MAX_MPOI_OFFSET:g}] m, got {a.mpoi_offset:g}")
     if not a.out.lower().endswith(".png"):
         raise UserError(f"--out must name a .png file, got {a.out!r}")
     task = build(TaskConfig, "task", delta=a.delta, eps_min=a.eps_min, eps_max=a.eps_max)

@@ -20,6 +20,9 @@ from .camera import PinholeCamera
 ROI_MARGIN = 1.15  # leaves may overhang the TROI; the centre must lie inside it
 
 
+MIN_SEMI_AXIS = 1e-3  # px: a ROI below a pixel holds nothing; below this its conic overflows
+
+
 @dataclass(frozen=True)
 class Roi:
     """Projected TROI R^TROI_I as an image conic: pixels p = (u, v, 1) with pᵀ·C·p ≤ 0 are inside.
@@ -69,8 +72,8 @@ class Roi:
     def from_ellipse(cls, centre: tuple[float, float], semi_axes: tuple[float, float], angle_deg: float = 0.0) -> "Roi":
         """Ellipse with centre (u, v), semi-axes (a, b) in pixels, a along `angle_deg` from the u axis."""
         a, b = float(semi_axes[0]), float(semi_axes[1])
-        if not (a > 0 and b > 0):
-            raise ValueError("semi-axes must be positive")
+        if not (a >= MIN_SEMI_AXIS and b >= MIN_SEMI_AXIS):  # 1/a² of 1e-300 px divided by zero
+            raise ValueError(f"semi-axes must be at least {MIN_SEMI_AXIS:g} px")
         if not all(math.isfinite(v) for v in (a, b, float(angle_deg), *map(float, centre))):
             raise ValueError("ellipse must be finite")
         t = math.radians(angle_deg)

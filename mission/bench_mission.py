@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from capm_field.cli_args import check_count
 from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
 from capm_field.errors import UserError, check_output, finite_real, not_a_file, shown, write_output
@@ -100,8 +101,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--json", metavar="FILE")
     a = ap.parse_args(argv)
     check_output(a.json, "--json")
-    if a.trials < 2:
-        raise UserError(f"--trials must be ≥ 2, got {a.trials}")
+    check_count(a.trials, 2, 1_000_000, "--trials")
     mission, trois = load_mission(a.mission)
     if mission.planner == "field":  # it plans across targets: no per-target plan to draw MPOIs against
         raise UserError(f"{a.mission}: planner 'field' plans across targets; bench-mission compares the per-target "

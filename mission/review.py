@@ -453,6 +453,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--web-port", type=_port, default=9090, help="HTTP port of the web viewer (default 9090)")
     ap.add_argument("--grpc-port", type=_port, default=9876, help="gRPC port the web viewer reads from (default 9876)")
     args = ap.parse_args(argv)
+    if args.web and args.web_port == args.grpc_port:  # the viewer failed on its own after we printed its address
+        raise UserError(f"--web-port and --grpc-port must differ (both {args.web_port})")
 
     if args.rrd is not None:
         if not args.rrd:  # Path("") would be ".", the current directory

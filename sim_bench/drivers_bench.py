@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capm_field.cli_args import check_count
 from capm_field.errors import UserError, check_output, write_output
 from drivers.can.codec import IGN_EXTINGUISH, IGN_IGNITE
 
@@ -179,8 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     out_path = Path(a.json)
     check_output(a.json, "--json")
-    if a.cutoff_trials < 1:
-        raise UserError("--cutoff-trials must be >= 1")
+    check_count(a.cutoff_trials, 1, 10_000, "--cutoff-trials")
 
     res: dict = {
         "zenoh_cmd_rtt_ms": None,

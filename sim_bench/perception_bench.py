@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
+from capm_field.cli_args import check_count
 from capm_field.cli_args import seed as cli_seed
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
@@ -222,11 +223,13 @@ def main(argv: list[str]) -> int:
         return 0 if e.code == 0 else 2
     check_output(a.json, "--json")
     camera_cfg = _camera_config(a.distortion)
-    if a.scenes < 1:
-        raise UserError(f"--scenes must be at least 1, got {a.scenes}")
+    check_count(a.scenes, 1, 100_000, "--scenes")
     if not 0.0 <= a.bare_share <= 1.0:
         raise UserError(f"--bare-share must be in [0, 1], got {a.bare_share}")
     r = run(a.scenes, a.seed, a.bare_share, not a.no_roi, progress=not a.quiet, camera_cfg=camera_cfg)
+    if r["weed_scenes"] + r["bare_scenes"] == 0:  # (a lens so strong that no pose sees a TROI whole)
+        raise UserError(f"no NSV pose in any of the {r['scenes']} scenes for this camera"
+                        f"{' (--distortion ' + shown(a.distortion) + ')' if a.distortion.strip() else ''}: nothing measured")
     pct = lambda v: "n/a" if v is None else f"{100 * v:.1f} %"  # noqa: E731
     print(f"scenes {r['scenes']} (weed {r['weed_scenes']}, bare {r['bare_scenes']}, no NSV pose {r['skipped_no_nsv_pose']}), seed {r['seed']}, roi {r['roi']}")
     print(f"detection rate        {pct(r['detection_rate'])}")

@@ -82,6 +82,18 @@ def test_bench_cli_json(tmp_path):
         (["bench", "--trials", "2", "--workers", "100000"], "--workers: must be in [1, 64]"),
         (["bench-fields", "--workers", "0"], "--workers: must be in [1, 64]"),
         (["bench-drivers", "--duration", "1e9", "--json", "/tmp/never.json"], "--duration must be in [0.5, 86400] s"),
+        # found by a sweep of every option (session 57): tracebacks, or counts that ran on past any patience
+        (["bench", "--trials", "2", "--planners", "a,a"], "--planners: 'a' given twice"),  # IndexError after the bench
+        (["bench", "--trials", "2", "--planners", "a,,b"], "--planners: an empty item"),
+        (["bench", "--trials", "10" + "0" * 29], "--trials must be in [1, 1 000 000]"),
+        (["bench-fields", "--troi", "10" + "0" * 29], "--troi must be in [1, 5 000]"),  # numpy ValueError
+        (["bench-fields", "--single-trials", "-1"], "--single-trials must be in [0, 1 000 000]"),
+        (["bench-fields", "--densities", "1e-300"], "--densities must be ≥ 0.001 weeds/m²"),
+        (["bench-perception", "--scenes", "10" + "0" * 29], "--scenes must be in [1, 100 000]"),  # OverflowError
+        (["bench-perception", "--scenes", "1", "--distortion", "100,0,0,0"], "no NSV pose in any of the 1 scenes"),
+        (["bench-mission", "mission/examples/bench_demo.yaml", "--trials", "10" + "0" * 29], "--trials must be in [2, 1 000 000]"),
+        (["bench-drivers", "--json", "/tmp/never.json", "--cutoff-trials", "0"], "--cutoff-trials must be in [1, 10 000]"),
+        (["regions", "--mpoi-offset", "1e308"], "--mpoi-offset must be a finite distance in [0, 10] m"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(cli_run, args, needle):

@@ -196,11 +196,13 @@ def test_annotated_copies_mark_the_centre_and_never_overwrite_each_other(tmp_pat
 
 @pytest.mark.parametrize("args, expect", [
     (["--roi", "1,2"], "give U,V,R (a circle) or U,V,W,H,ANGLE"),
-    (["--roi", "10,10,0"], "the radius must be positive"),
+    (["--roi", "10,10,0"], "the radius must be at least 1 px"),
+    (["--roi", "120,90,1e-300"], "the radius must be at least 1 px"),  # was a ZeroDivisionError traceback
     (["--roi", "nan,1,2"], "must be finite"),
     (["--roi", "1e30,1,2"], "must be finite and within"),
     (["--roi", "a,b,c"], "not a list of numbers"),
-    (["--roi", "1,1,5,0,0"], "width and height must be positive"),
+    (["--roi", "1,1,5,0,0"], "width and height must be at least 2 px"),
+    (["--roi", "120,90,1e-300,40,0"], "width and height must be at least 2 px"),
     (["--roi", "1,1,1", "--roi-mask", "m.png"], "not both"),
     (["--roi-mask", "/nonexistent/m.png"], "--roi-mask /nonexistent/m.png: cannot read it"),
     (["--json", "/nonexistent/d.json"], "directory /nonexistent does not exist"),

@@ -210,11 +210,15 @@ def test_review_skips_foreign_and_undecodable_messages(tmp_path, capsys):
     assert "4 message(s) skipped" in cap.err and "Traceback" not in cap.err and "(3 messages; 4 skipped" in cap.out, cap
 
 
-@pytest.mark.parametrize("flag, value", [("--web-port", "99999"), ("--grpc-port", "0"), ("--web-port", "x")])
-def test_review_refuses_a_port_no_viewer_can_take(cli_run, tmp_path, flag, value):
-    """--web-port 99999 printed a viewer address, then the viewer failed with its own usage text."""
-    r = cli_run(["review", str(tmp_path), "--web", flag, value])
-    assert r.returncode == 2 and f"argument {flag}:" in r.stderr and "web viewer" not in r.stdout, r
+@pytest.mark.parametrize("args, expect", [
+    (["--web-port", "99999"], "argument --web-port:"), (["--grpc-port", "0"], "argument --grpc-port:"),
+    (["--web-port", "x"], "argument --web-port:"), (["--web-port", "9911", "--grpc-port", "9911"], "must differ"),
+])
+def test_review_refuses_ports_no_viewer_can_take(cli_run, tmp_path, args, expect):
+    """--web-port 99999 (or one port for both) printed a viewer address, then the viewer failed
+    with its own usage text or a port already used."""
+    r = cli_run(["review", str(tmp_path), "--web", *args])
+    assert r.returncode == 2 and expect in r.stderr and "web viewer" not in r.stdout, r
 
 
 def test_review_to_a_directory_is_one_line(tmp_path, capsys):
