@@ -29,7 +29,7 @@ import time
 from typing import Any
 
 from capm_field.config import BodyConfig
-from capm_field.geometry import SE2, wrap_angle
+from capm_field.geometry import FIELD_EXTENT_M, SE2, wrap_angle
 from drivers.body_protocol import LinkConfig, check_id, link_security, zenoh_error_text
 from drivers.body_server import BackendState, BodyBackend, BodyServer, MoveStatus, ServerConfig, check_link_security
 from drivers.interfaces import EStopActive
@@ -278,8 +278,8 @@ def _se2(text: str) -> SE2:
         x, y, yaw = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected x,y,yaw (m, m, rad), got {text!r}") from None
-    if not all(math.isfinite(v) for v in (x, y, yaw)):
-        raise argparse.ArgumentTypeError(f"x,y,yaw must be finite, got {text!r}")
+    if not (abs(x) <= FIELD_EXTENT_M and abs(y) <= FIELD_EXTENT_M and math.isfinite(yaw)):  # NaN fails too
+        raise argparse.ArgumentTypeError(f"x,y,yaw must be finite, x and y within ±{FIELD_EXTENT_M:g} m, got {text[:80]!r}")
     return SE2(x, y, yaw)
 
 
@@ -289,10 +289,14 @@ def _check_args(a: argparse.Namespace) -> str | None:
         check_id("robot_id", a.robot_id)
     except ValueError as e:
         return f"--robot-id: {e}"
-    for opt, v, hi in (("--estop-timeout", a.estop_timeout, 60.0), ("--spot-estop-timeout", a.spot_estop_timeout, 600.0),
-                       ("--lease-ttl", a.lease_ttl, 600.0), ("--lease-ms", a.lease_ms, 60_000)):
-        if not 0 < v <= hi:  # NaN too
-            return f"{opt} must be in (0, {hi:g}], got {v}"
+    if not a.hostname.strip():
+        return "--hostname: empty"
+    # lower bounds: a keep-alive or lease shorter than a network round trip and a few state periods
+    # (1e-300 s passed) E-stops or expires at once, which is safe but serves nothing
+    for opt, v, lo, hi in (("--estop-timeout", a.estop_timeout, 0.1, 60.0), ("--spot-estop-timeout", a.spot_estop_timeout, 1.0, 600.0),
+                           ("--lease-ttl", a.lease_ttl, 0.1, 600.0), ("--lease-ms", a.lease_ms, 100, 60_000)):
+        if not lo <= v <= hi:  # NaN too
+            return f"{opt} must be in [{lo:g}, {hi:g}], got {v}"
     try:
         BodyConfig(max_speed=a.max_speed, max_yaw_rate=a.max_yaw_rate)
     except ValueError as e:  # pydantic's ValidationError: its first error, one line

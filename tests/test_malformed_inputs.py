@@ -232,7 +232,11 @@ def test_review_to_a_directory_is_one_line(tmp_path, capsys):
 @pytest.mark.parametrize(
     "extra, expect",
     [
-        (["--estop-timeout", "nan"], "--estop-timeout must be in (0, 60]"),
+        (["--estop-timeout", "nan"], "--estop-timeout must be in [0.1, 60]"),
+        (["--estop-timeout", "1e-300"], "--estop-timeout must be in [0.1, 60]"),
+        (["--lease-ttl", "1e-300"], "--lease-ttl must be in [0.1, 600]"),
+        (["--field-in-odom", "1e308,0,0"], "x and y within ±10000 m"),
+        (["--hostname", ""], "--hostname: empty"),
         (["--lease-ms", "-5"], "--lease-ms must be in"),
         (["--robot-id", "a/b"], "--robot-id: robot_id must match"),
         (["--max-speed", "1e9"], "--max-speed: Input should be less than or equal to 5"),
@@ -247,7 +251,11 @@ def test_spot_bridge_refuses_bad_options_before_touching_the_robot(monkeypatch, 
 
     monkeypatch.setattr(spot_bridge, "connect_spot", never)
     args = ["--hostname", "spot", "--listen", "tcp/127.0.0.1:7447"] + extra
-    assert spot_bridge.main(args) == 2
+    try:
+        rc = spot_bridge.main(args)
+    except SystemExit as e:  # argparse's own refusals
+        rc = e.code
+    assert rc == 2
     err = capsys.readouterr().err
     assert expect in err and ".rs:" not in err and "Json5Err" not in err and "Message {" not in err, err
 
