@@ -204,7 +204,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--eps-min", type=float, default=TaskConfig().eps_min, help="ε_min (m², EPMC)")
     ap.add_argument("--eps-max", type=float, default=TaskConfig().eps_max, help="ε_max (m², EPMC)")
     ap.add_argument("--radius-range", default="0.2,0.3", help="TROI radius range r_w (m): MIN,MAX")
-    ap.add_argument("--urdf", help="Z1 URDF (default: the one shipped in example-robot-data)")
+    ap.add_argument("--urdf", type=cli_args.path, help="Z1 URDF (default: the one shipped in example-robot-data)")
     ap.add_argument("--tiebreak", choices=("first", "uniform", "nearest"), default="uniform", help="planner (a) among equal stops")
     ap.add_argument("--workers", type=cli_args.workers, default=min(2, os.cpu_count() or 1), help="processes (1-64)")
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")

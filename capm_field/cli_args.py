@@ -82,3 +82,11 @@ def check_count(value: int, lo: int, hi: int, flag: str) -> int:
         bound = f"{hi:_}".replace("_", " ")  # 1 000 000
         raise UserError(f"{flag} must be in [{lo}, {bound}], got {str(value)[:30]}")
     return value
+
+
+def path(text: str) -> str:
+    """argparse type of a file or directory argument: not empty (`''` was read as "not given", or
+    as the current directory: `--annotate ''` wrote into it, `--summary ''` skipped the comparison)."""
+    if not text:
+        raise argparse.ArgumentTypeError("empty path")
+    return text

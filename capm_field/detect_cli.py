@@ -226,13 +226,13 @@ def detect_file(shown_name: str, path: Path, roi: Roi | None, mask: np.ndarray |
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="capm-field detect", description="The weed-centre detector on image files: the centre of the main plant in each.")
-    ap.add_argument("images", nargs="+", metavar="IMAGE|DIR", help="image files, or directories of them")
+    ap.add_argument("images", nargs="+", type=cli_args.path, metavar="IMAGE|DIR", help="image files, or directories of them")
     ap.add_argument("--roi", metavar="U,V,R|U,V,W,H,ANGLE",
                     help="search only this circle (centre, radius) or ellipse (centre, full width, height, angle°), in px "
                          "(write --roi=-5,… when the first number is negative)")
     ap.add_argument("--roi-mask", metavar="FILE", help="search only where this image (the photos' size) is non-zero")
     ap.add_argument("--json", metavar="FILE", help="write every image's answer to FILE")
-    ap.add_argument("--annotate", metavar="DIR", help="write each image with its centre marked to DIR/<name>.centre.jpg")
+    ap.add_argument("--annotate", type=cli_args.path, metavar="DIR", help="write each image with its centre marked to DIR/<name>.centre.jpg")
     try:
         a = ap.parse_args(argv)
     except SystemExit as e:  # argparse printed its usage and error line already

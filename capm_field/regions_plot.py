@@ -14,6 +14,7 @@ import sys
 
 import numpy as np
 
+from . import cli_args
 from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
 from .errors import UserError, check_output
 from .reachability import get_maps, problem_type
@@ -31,7 +32,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--delta", type=float, default=TaskConfig().delta, help="δ (NSV resolution threshold)")
     ap.add_argument("--eps-min", type=float, default=TaskConfig().eps_min)
     ap.add_argument("--eps-max", type=float, default=TaskConfig().eps_max)
-    ap.add_argument("--urdf", help="Z1 URDF (default: the one shipped in example-robot-data)")
+    ap.add_argument("--urdf", type=cli_args.path, help="Z1 URDF (default: the one shipped in example-robot-data)")
     ap.add_argument("--resolution", type=float, default=0.01,
                     help=f"raster cell of the drawing (m, {RESOLUTION_RANGE[0]:g} to {RESOLUTION_RANGE[1]:g}, "
                          f"at most {MAX_CELLS} cells across)")

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from capm_field.cli_args import check_count
+from capm_field.cli_args import path as cli_path
 from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
 from capm_field.errors import UserError, check_output, finite_real, not_a_file, shown, write_output
@@ -97,7 +98,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("mission")
     ap.add_argument("--trials", type=int, default=2000, help="MPOI draws per target")
     ap.add_argument("--seed", type=cli_seed, default=0)
-    ap.add_argument("--summary", help="a run's summary.json to compare against")
+    ap.add_argument("--summary", type=cli_path, help="a run's summary.json to compare against")
     ap.add_argument("--json", metavar="FILE")
     a = ap.parse_args(argv)
     check_output(a.json, "--json")

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from capm_field.camera import PinholeCamera
+from capm_field.cli_args import path as cli_path
 from capm_field.detector import detect_centre
 from capm_field.errors import UserError, check_output, terminal_safe, write_output
 
@@ -230,7 +231,7 @@ def _finite(v: Any) -> Any:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="capm-field detect-replay",
                                  description="Run a run log's images through today's detector and compare with the logged answers.")
-    ap.add_argument("run", metavar="RUN.mcap", help="a run log (or its run directory)")
+    ap.add_argument("run", type=cli_path, metavar="RUN.mcap", help="a run log (or its run directory)")
     ap.add_argument("--json", metavar="FILE", help="write every detection and the summary to FILE")
     ap.add_argument("--quiet", action="store_true", help="only the summary")
     try:

@@ -33,6 +33,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import McapReader, RrdReader
 
+from capm_field.cli_args import path as cli_path
 from capm_field.errors import UserError, check_output, terminal_safe
 
 from .runlog import PROTO_TOPICS, TOPICS
@@ -447,7 +448,7 @@ def _port(text: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="capm-field review", description=__doc__.splitlines()[0])
-    ap.add_argument("run", help="run log (run.mcap) or its run directory, also one cut short by a crash")
+    ap.add_argument("run", type=cli_path, help="run log (run.mcap) or its run directory, also one cut short by a crash")
     ap.add_argument("--rrd", help="write a Rerun recording to this file (headless, no viewer)")
     ap.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of the native viewer")
     ap.add_argument("--web-port", type=_port, default=9090, help="HTTP port of the web viewer (default 9090)")

@@ -94,6 +94,12 @@ def test_bench_cli_json(tmp_path):
         (["bench-mission", "mission/examples/bench_demo.yaml", "--trials", "10" + "0" * 29], "--trials must be in [2, 1 000 000]"),
         (["bench-drivers", "--json", "/tmp/never.json", "--cutoff-trials", "0"], "--cutoff-trials must be in [1, 10 000]"),
         (["regions", "--mpoi-offset", "1e308"], "--mpoi-offset must be a finite distance in [0, 10] m"),
+        # an empty path was "not given" or the current directory (--annotate '' wrote into it)
+        (["bench", "--trials", "2", "--urdf", ""], "argument --urdf: empty path"),
+        (["detect", "--annotate", "", "tests/fixtures/plants/seedling.jpg"], "argument --annotate: empty path"),
+        (["detect-replay", ""], "argument RUN.mcap: empty path"),
+        (["review", "", "--rrd", "/tmp/never.rrd"], "argument run: empty path"),
+        (["bench-mission", "mission/examples/bench_demo.yaml", "--summary", ""], "argument --summary: empty path"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(cli_run, args, needle):
