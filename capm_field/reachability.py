@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -433,9 +434,14 @@ def save_maps(maps: ReachabilityMaps, path: Path) -> None:
     arrays["troi_radii"] = maps.troi_radii
     arrays["meta"] = np.array([maps.manip.step, maps.build_s, maps.samples["nozzle_configs"], maps.samples["camera_configs"]])
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)  # atomic: a crash never leaves a half-written cache
+    # a name of this process's own: two processes building the same maps at once (a run and a
+    # bench; tests side by side) wrote into one temporary file
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.{threading.get_ident()}.tmp.npz")
+    try:
+        np.savez(tmp, **arrays)
+        os.replace(tmp, path)  # atomic: a crash never leaves a half-written cache
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def load_maps(path: Path, key: str) -> ReachabilityMaps:

@@ -109,6 +109,20 @@ def test_maps_cache_round_trip(tmp_path, robot):
     np.testing.assert_array_equal(again.manip.lo, built.manip.lo)
 
 
+def test_saves_of_the_same_maps_at_once_do_not_share_a_temporary_file(tmp_path, maps):
+    """Two processes building the same maps (a run and a bench, tests side by side) wrote into
+    one `.tmp.npz`; each save now has its own, and the cache left is whole."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from capm_field.reachability import load_maps, save_maps
+
+    path = tmp_path / f"reach-{maps.key}.npz"
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(lambda _: save_maps(maps, path), range(8)))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]
+    np.testing.assert_array_equal(load_maps(path, maps.key).manip.lo, maps.manip.lo)
+
+
 def test_flame_solver_solution_satisfies_epmc(robot, task):
     solver = FlameSolver(robot, task)
     target = np.array([0.6, 0.1, -robot.height])
