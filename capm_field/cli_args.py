@@ -49,15 +49,20 @@ def positive_floats(text: str, flag: str) -> tuple[float, ...]:
 MAX_SEED = 2**63 - 1
 
 
-def seed(text: str) -> int:
-    """argparse type of a random seed: an integer in [0, 2⁶³) (numpy refuses negative seeds)."""
+def _int_in(text: str, lo: int, hi: int, shown_hi: str) -> int:
+    """An argparse integer within [lo, hi], else ArgumentTypeError ("must be in [lo, shown_hi]")."""
     try:
         n = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 0 <= n <= MAX_SEED:
-        raise argparse.ArgumentTypeError(f"must be in [0, 2**63 - 1] (got {text[:30]})")
+        raise argparse.ArgumentTypeError(f"not an integer: {text[:30]!r}") from None
+    if not lo <= n <= hi:
+        raise argparse.ArgumentTypeError(f"must be in [{lo}, {shown_hi}] (got {text[:30]})")
     return n
+
+
+def seed(text: str) -> int:
+    """argparse type of a random seed: an integer in [0, 2⁶³) (numpy refuses negative seeds)."""
+    return _int_in(text, 0, MAX_SEED, "2**63 - 1")
 
 
 MAX_WORKERS = 64  # processes a bench forks; far above any machine this runs on (each holds the maps)
@@ -66,13 +71,7 @@ MAX_WORKERS = 64  # processes a bench forks; far above any machine this runs on 
 def workers(text: str) -> int:
     """argparse type of --workers: 1..MAX_WORKERS processes (100 000 forked as many, each a copy
     of the planning core, before the first result; 0 and below ran one quietly)."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text[:30]!r}") from None
-    if not 1 <= n <= MAX_WORKERS:
-        raise argparse.ArgumentTypeError(f"must be in [1, {MAX_WORKERS}] (got {text[:30]})")
-    return n
+    return _int_in(text, 1, MAX_WORKERS, str(MAX_WORKERS))
 
 
 def check_count(value: int, lo: int, hi: int, flag: str) -> int:
