@@ -192,7 +192,7 @@ def rmse_vs_paper(res: dict, spec: BenchSpec) -> float:
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="capm-field bench", description=__doc__.split("\n")[0])
-    ap.add_argument("--trials", type=int, default=1000, help="TROIs per path length (paper: N = 1000)")
+    ap.add_argument("--trials", type=cli_args.count(1, 1_000_000), default=1000, help="TROIs per path length (paper: N = 1000)")
     ap.add_argument("--seed", type=cli_args.seed, default=0)
     ap.add_argument("--planners", default="a,b,c", help="comma-separated subset of a,b,c,cstar")
     ap.add_argument("--lengths", default=",".join(str(x) for x in PATH_LENGTHS), help="path lengths (m)")
@@ -231,7 +231,6 @@ def _core_for(task: TaskConfig, progress: bool, urdf: str | None = None) -> Plan
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
     check_output(a.json, "--json")
-    cli_args.check_count(a.trials, 1, 1_000_000, "--trials")
     if a.gamma < 0:
         raise UserError(f"--gamma must be ≥ 0, got {a.gamma}")
     planners = cli_args.names(a.planners, ALL_PLANNERS, "--planners")

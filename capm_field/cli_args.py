@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from .errors import UserError
 
@@ -65,22 +65,16 @@ def seed(text: str) -> int:
     return _int_in(text, 0, MAX_SEED, "2**63 - 1")
 
 
+def count(lo: int, hi: int) -> Callable[[str], int]:
+    """argparse type of an integer option within [lo, hi]: 10**30 trials or scenes ran on past any
+    patience or overflowed numpy (a traceback); a negative count was read as 0."""
+    bound = f"{hi:_}".replace("_", " ")  # 1 000 000
+    return lambda text: _int_in(text, lo, hi, bound)
+
+
 MAX_WORKERS = 64  # processes a bench forks; far above any machine this runs on (each holds the maps)
-
-
-def workers(text: str) -> int:
-    """argparse type of --workers: 1..MAX_WORKERS processes (100 000 forked as many, each a copy
-    of the planning core, before the first result; 0 and below ran one quietly)."""
-    return _int_in(text, 1, MAX_WORKERS, str(MAX_WORKERS))
-
-
-def check_count(value: int, lo: int, hi: int, flag: str) -> int:
-    """An integer option within [lo, hi]: 10**30 trials or scenes ran on past any patience, or
-    overflowed numpy (a traceback); a negative count was read as 0."""
-    if not lo <= value <= hi:
-        bound = f"{hi:_}".replace("_", " ")  # 1 000 000
-        raise UserError(f"{flag} must be in [{lo}, {bound}], got {str(value)[:30]}")
-    return value
+# --workers: 100 000 forked as many copies of the planning core before the first result; 0 ran one quietly
+workers = count(1, MAX_WORKERS)
 
 
 def path(text: str) -> str:

@@ -138,7 +138,9 @@ def _check_pixels(data: np.ndarray) -> None:
     """Refuse an image of over MAX_PIXELS from its header, before it is decoded: a PNG of a few kB
     can declare 20 000 × 20 000 px (2.5 GB in OpenCV before the detector said bad_image). Pillow
     reads the header (from the first 16 MiB); a format or layout it does not read there is left to
-    OpenCV, whose own cap is 2^30 px."""
+    OpenCV, whose own cap is 2^30 px. Past twice Pillow's MAX_IMAGE_PIXELS (~179 Mpx by default)
+    Pillow refuses to open it and its error gives the pixel count; the size read counts where
+    that limit is higher or off."""
     import re
     import warnings
 

@@ -181,17 +181,17 @@ def format_table(results: list[dict]) -> str:
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="capm-field bench-fields", description=__doc__.split("\n")[0])
-    ap.add_argument("--fields", type=int, default=30, help="random fields per density")
-    ap.add_argument("--troi", type=int, default=20, help="TROIs per field (K)")
+    ap.add_argument("--fields", type=cli_args.count(1, 10_000), default=30, help="random fields per density")
+    ap.add_argument("--troi", type=cli_args.count(1, 5_000), default=20, help="TROIs per field (K; a mission's own limit)")
     ap.add_argument("--densities", default=",".join(f"{d:g}" for d in DENSITIES), help="weeds per m², comma-separated")
     ap.add_argument("--planners", default=",".join(PLANNERS), help=f"subset of {','.join(PLANNERS)}")
     ap.add_argument("--seed", type=cli_args.seed, default=0)
     ap.add_argument("--prior", choices=("gauss", "in-troi"), default="gauss", help="MPOI ~ N(X_w, Σ_w), or restricted to the TROI disc")
-    ap.add_argument("--single-trials", type=int, default=200, help="TROIs of the single-TROI protocol row (0: skip)")
+    ap.add_argument("--single-trials", type=cli_args.count(0, 1_000_000), default=200, help="TROIs of the single-TROI protocol row (0: skip)")
     ap.add_argument("--gamma", type=float, default=table_bench.DEFAULT_GAMMA)
     ap.add_argument("--distance", choices=("euclidean", "squared"), default="euclidean")
     ap.add_argument("--sigma", choices=("variance", "std"), default="variance")
-    ap.add_argument("--latency-fields", type=int, default=3, help="50-TROI fields timed for plan latency (0: skip)")
+    ap.add_argument("--latency-fields", type=cli_args.count(0, 1_000), default=3, help="50-TROI fields timed for plan latency (0: skip)")
     ap.add_argument("--workers", type=cli_args.workers, default=min(2, os.cpu_count() or 1), help="processes (1-64)")
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--quiet", action="store_true")
@@ -204,10 +204,6 @@ MIN_DENSITY = 1e-3  # weeds/m²: one per 1000 m²; 20 TROIs then span ~140 m
 def main(argv: list[str]) -> int:
     a = _parser().parse_args(argv)
     check_output(a.json, "--json")
-    cli_args.check_count(a.fields, 1, 10_000, "--fields")
-    cli_args.check_count(a.troi, 1, 5_000, "--troi")  # a mission's own limit (mission/config.py MAX_TROIS)
-    cli_args.check_count(a.single_trials, 0, 1_000_000, "--single-trials")
-    cli_args.check_count(a.latency_fields, 0, 1_000, "--latency-fields")
     planners = cli_args.names(a.planners, PLANNERS, "--planners")
     densities = cli_args.positive_floats(a.densities, "--densities")
     if min(densities) < MIN_DENSITY:  # 1e-300 /m²: a field of 1e301 m², energies of 1e150 and nan

@@ -9,7 +9,6 @@ summary and the paper's problem type.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
 import numpy as np

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from capm_field.cli_args import check_count
+from capm_field.cli_args import count
 from capm_field.cli_args import path as cli_path
 from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
@@ -96,13 +96,12 @@ def main(argv: list[str]) -> int:
     # the docstring's first paragraph, one sentence (its first line alone stops mid-sentence)
     ap = argparse.ArgumentParser(prog="capm-field bench-mission", description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("mission")
-    ap.add_argument("--trials", type=int, default=2000, help="MPOI draws per target")
+    ap.add_argument("--trials", type=count(2, 1_000_000), default=2000, help="MPOI draws per target")
     ap.add_argument("--seed", type=cli_seed, default=0)
     ap.add_argument("--summary", type=cli_path, help="a run's summary.json to compare against")
     ap.add_argument("--json", metavar="FILE")
     a = ap.parse_args(argv)
     check_output(a.json, "--json")
-    check_count(a.trials, 2, 1_000_000, "--trials")
     mission, trois = load_mission(a.mission)
     if mission.planner == "field":  # it plans across targets: no per-target plan to draw MPOIs against
         raise UserError(f"{a.mission}: planner 'field' plans across targets; bench-mission compares the per-target "

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capm_field.cli_args import check_count
+from capm_field.cli_args import count
 from capm_field.errors import UserError, check_output, write_output
 from drivers.can.codec import IGN_EXTINGUISH, IGN_IGNITE
 
@@ -176,11 +176,10 @@ def main(argv: list[str] | None = None) -> int:
     p = _Parser(prog="capm-field bench-drivers", description=__doc__.splitlines()[0])
     p.add_argument("--duration", type=_positive, default=60.0, help="seconds of streaming per transport (default 60)")
     p.add_argument("--json", required=True, metavar="FILE", help="write the figures to FILE")
-    p.add_argument("--cutoff-trials", type=int, default=10, help="igniter cutoff trials (default 10)")
+    p.add_argument("--cutoff-trials", type=count(1, 10_000), default=10, help="igniter cutoff trials (default 10)")
     a = p.parse_args(argv)
     out_path = Path(a.json)
     check_output(a.json, "--json")
-    check_count(a.cutoff_trials, 1, 10_000, "--cutoff-trials")
 
     res: dict = {
         "zenoh_cmd_rtt_ms": None,

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
-from capm_field.cli_args import check_count
+from capm_field.cli_args import count
 from capm_field.cli_args import seed as cli_seed
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
@@ -207,7 +207,7 @@ def _camera_config(text: str) -> CameraConfig:
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="capm-field bench-perception", description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", type=int, default=300, help="number of scenes (default 300)")
+    ap.add_argument("--scenes", type=count(1, 100_000), default=300, help="number of scenes (default 300)")
     ap.add_argument("--seed", type=cli_seed, default=0)
     ap.add_argument("--bare-share", type=float, default=0.15, help="share of bare-soil scenes (default 0.15)")
     ap.add_argument("--no-roi", action="store_true", help="search the whole image instead of the projected TROI")
@@ -223,7 +223,6 @@ def main(argv: list[str]) -> int:
         return 0 if e.code == 0 else 2
     check_output(a.json, "--json")
     camera_cfg = _camera_config(a.distortion)
-    check_count(a.scenes, 1, 100_000, "--scenes")
     if not 0.0 <= a.bare_share <= 1.0:
         raise UserError(f"--bare-share must be in [0, 1], got {a.bare_share}")
     r = run(a.scenes, a.seed, a.bare_share, not a.no_roi, progress=not a.quiet, camera_cfg=camera_cfg)

@@ -69,7 +69,7 @@ def test_bench_cli_json(tmp_path):
         (["bench", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
         (["bench-fields", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
         (["bench-perception", "--scenes", "1", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
-        (["bench-perception", "--scenes", "x"], "--scenes: invalid int value"),
+        (["bench-perception", "--scenes", "x"], "argument --scenes: not an integer"),
         # nan passed `v <= 0` (an AssertionError, an OverflowError), inf printed inf rows
         (["bench", "--trials", "2", "--lengths", "nan"], "--lengths must be positive finite numbers"),
         (["bench-fields", "--densities", "nan"], "--densities must be positive finite numbers"),
@@ -85,14 +85,14 @@ def test_bench_cli_json(tmp_path):
         # found by a sweep of every option (session 57): tracebacks, or counts that ran on past any patience
         (["bench", "--trials", "2", "--planners", "a,a"], "--planners: 'a' given twice"),  # IndexError after the bench
         (["bench", "--trials", "2", "--planners", "a,,b"], "--planners: an empty item"),
-        (["bench", "--trials", "10" + "0" * 29], "--trials must be in [1, 1 000 000]"),
-        (["bench-fields", "--troi", "10" + "0" * 29], "--troi must be in [1, 5 000]"),  # numpy ValueError
-        (["bench-fields", "--single-trials", "-1"], "--single-trials must be in [0, 1 000 000]"),
+        (["bench", "--trials", "10" + "0" * 29], "argument --trials: must be in [1, 1 000 000]"),
+        (["bench-fields", "--troi", "10" + "0" * 29], "argument --troi: must be in [1, 5 000]"),  # numpy ValueError
+        (["bench-fields", "--single-trials", "-1"], "argument --single-trials: must be in [0, 1 000 000]"),
         (["bench-fields", "--densities", "1e-300"], "--densities must be ≥ 0.001 weeds/m²"),
-        (["bench-perception", "--scenes", "10" + "0" * 29], "--scenes must be in [1, 100 000]"),  # OverflowError
+        (["bench-perception", "--scenes", "10" + "0" * 29], "argument --scenes: must be in [1, 100 000]"),  # OverflowError
         (["bench-perception", "--scenes", "1", "--distortion", "100,0,0,0"], "no NSV pose in any of the 1 scenes"),
-        (["bench-mission", "mission/examples/bench_demo.yaml", "--trials", "10" + "0" * 29], "--trials must be in [2, 1 000 000]"),
-        (["bench-drivers", "--json", "/tmp/never.json", "--cutoff-trials", "0"], "--cutoff-trials must be in [1, 10 000]"),
+        (["bench-mission", "mission/examples/bench_demo.yaml", "--trials", "10" + "0" * 29], "argument --trials: must be in [2, 1 000 000]"),
+        (["bench-drivers", "--json", "/tmp/never.json", "--cutoff-trials", "0"], "argument --cutoff-trials: must be in [1, 10 000]"),
         (["regions", "--mpoi-offset", "1e308"], "--mpoi-offset must be a finite distance in [0, 10] m"),
         # an empty path was "not given" or the current directory (--annotate '' wrote into it)
         (["bench", "--trials", "2", "--urdf", ""], "argument --urdf: empty path"),
