@@ -4,6 +4,7 @@ import math
 import os
 import reprlib
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -59,7 +60,8 @@ def not_a_file(p: Path, what: str) -> str:
 
 def check_output(path: str | None, option: str) -> None:
     """Fail fast (before a long bench) if `path` cannot be an output file: its directory must
-    exist and be writable, and it must not be a directory itself. None: nothing to check."""
+    exist and take a new file (tried), an existing file must open for writing, and it must not be
+    a directory itself. None: nothing to check."""
     if path is None:
         return
     if not path:  # `--json ""` was taken for "not given" and nothing was written
@@ -76,6 +78,19 @@ def check_output(path: str | None, option: str) -> None:
         raise UserError(f"{option} {path}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise UserError(f"{option} {path}: directory {parent} is not writable")
+    # os.access says yes to root everywhere, and /proc, /sys or a read-only mount refuse only the
+    # write itself: so try one (a file of our own, removed at once; an existing file is opened for
+    # appending, which leaves it as it was). A device or a pipe (/dev/stdout, a FIFO that blocks
+    # until its reader comes) is left to the write itself.
+    try:
+        if p.is_file():
+            with open(p, "a"):
+                pass
+        elif not p.exists():
+            with tempfile.TemporaryFile(dir=parent):
+                pass
+    except OSError as e:
+        raise UserError(f"{option} {path}: cannot write there ({e.strerror or e})") from None
 
 
 def write_output(path: str, text: str, option: str) -> None:

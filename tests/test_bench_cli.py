@@ -65,6 +65,8 @@ def test_bench_cli_json(tmp_path):
         (["bench-drivers", "--json", "/no/such/dir/d.json"], "directory /no/such/dir does not exist"),
         (["regions", "--out", "/no/such/dir/r.png"], "directory /no/such/dir does not exist"),
         (["bench", "--trials", "2", "--json", "/"], "is a directory"),
+        # a directory that refuses only the write itself (os.access says yes to root): was refused after the work
+        (["bench-perception", "--scenes", "1", "--json", "/proc/capm-field.json"], "--json /proc/capm-field.json: cannot write there"),
         # a negative seed reached numpy (a traceback)
         (["bench", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
         (["bench-fields", "--seed", "-1"], "--seed: must be in [0, 2**63 - 1]"),
@@ -261,3 +263,15 @@ def test_bench_mission_names_a_directory_given_as_summary(cli_run, tiny_run, tmp
     r = cli_run(["bench-mission", str(tiny_run[0]), "--trials", "2", "--summary", str(tmp_path)])
     assert r.returncode == 2 and "--summary: is a directory, not a summary file" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_output_probe_leaves_no_file_and_an_existing_file_as_it_was(tmp_path):
+    """check_output tries a write where the file would go: nothing of it may remain."""
+    from capm_field.errors import check_output
+
+    check_output(str(tmp_path / "new.json"), "--json")
+    assert list(tmp_path.iterdir()) == []
+    old = tmp_path / "old.json"
+    old.write_text("kept")
+    check_output(str(old), "--json")
+    assert old.read_text() == "kept" and list(tmp_path.iterdir()) == [old]
