@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cli_args
-from .config import MIN_TROI_RADIUS, ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
+from .config import MIN_TROI_RADIUS, TASK_FLAGS, ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
 from .errors import UserError, check_output, write_output
 from .geometry import SE2
 from .keystates import TROI
@@ -247,7 +247,7 @@ def main(argv: list[str]) -> int:
     progress = not a.quiet and sys.stderr.isatty()
     if a.readings:
         return _readings(spec, opts, a.workers, a.json, progress, task_kw, a.urdf)
-    task = build(TaskConfig, "task", gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma, **task_kw)
+    task = build(TaskConfig, "task", TASK_FLAGS, gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma, **task_kw)
     core = _core_for(task, not a.quiet, a.urdf)
     for r in r_range:
         core.ro(r)  # a radius outside the mapped range is a user error, raised before the run
@@ -277,7 +277,7 @@ def _readings(spec: BenchSpec, opts: PlannerOptions, workers: int, json_path: st
         for gamma in (2.0, 0.5):
             for sigma in ("variance", "std"):
                 for span in ("midpoint", "random"):
-                    task = build(TaskConfig, "task", gamma=gamma, distance_form=distance, sigma_reading=sigma, **task_kw)
+                    task = build(TaskConfig, "task", TASK_FLAGS, gamma=gamma, distance_form=distance, sigma_reading=sigma, **task_kw)
                     core = _core_for(task, False, urdf)
                     sp = BenchSpec(spec.trials, spec.seed, spec.planners, spec.lengths, span, spec.workspace, spec.r_range)
                     res = run_bench(core, sp, opts, workers, progress)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import typing
 from typing import Any, Literal
 
@@ -234,8 +235,13 @@ class ReachabilityConfig(_Frozen):
     cache_dir: str | None = Field(None, description="map cache; default $XDG_CACHE_HOME/capm-field or ~/.cache/capm-field")
 
 
-def build(model: type[BaseModel], where: str = "", **values):
-    """Instantiate a config model; a validation error becomes one UserError line naming the field."""
+TASK_FLAGS = {"delta": "--delta", "eps_min": "--eps-min", "eps_max": "--eps-max", "gamma": "--gamma",
+              "distance_form": "--distance", "sigma_reading": "--sigma"}  # TaskConfig fields the bench CLIs set
+
+
+def build(model: type[BaseModel], where: str = "", flags: dict[str, str] | None = None, **values):
+    """Instantiate a config model; a validation error becomes one UserError line naming the field,
+    or the command-line option that gave it (`flags`: field name → option, e.g. "delta" → "--delta")."""
     from pydantic import ValidationError
 
     from .errors import UserError
@@ -247,4 +253,12 @@ def build(model: type[BaseModel], where: str = "", **values):
         loc = ".".join(str(x) for x in err.get("loc", ())) or where
         prefix = f"{where}.{loc}" if where and loc != where else loc
         got = f" (got {err['input']!r})" if "input" in err and not isinstance(err["input"], dict) else ""
-        raise UserError(f"{prefix or model.__name__}: {err['msg']}{got}") from e
+        msg = err["msg"]
+        if flags:
+            if loc in flags:
+                prefix = flags[loc]
+            elif loc == where:  # a check across fields: its message names them
+                msg = re.sub(r"\b(" + "|".join(map(re.escape, flags)) + r")\b", lambda m: flags[m.group(1)],
+                             msg.removeprefix("Value error, "))
+                raise UserError(f"{msg}{got}") from e
+        raise UserError(f"{prefix or model.__name__}: {msg}{got}") from e

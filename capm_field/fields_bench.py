@@ -26,7 +26,7 @@ import numpy as np
 
 from . import bench as table_bench
 from . import cli_args
-from .config import TaskConfig, build
+from .config import TASK_FLAGS, TaskConfig, build
 from .errors import UserError, check_output, write_output
 from .field_planner import FieldOptions
 from .field_sim import FieldRun, run_planner
@@ -208,7 +208,7 @@ def main(argv: list[str]) -> int:
     densities = cli_args.positive_floats(a.densities, "--densities")
     if min(densities) < MIN_DENSITY:  # 1e-300 /m²: a field of 1e301 m², energies of 1e150 and nan
         raise UserError(f"--densities must be ≥ {MIN_DENSITY:g} weeds/m², got {min(densities):g}")
-    task = build(TaskConfig, "task", gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma)
+    task = build(TaskConfig, "task", TASK_FLAGS, gamma=a.gamma, distance_form=a.distance, sigma_reading=a.sigma)
     core = table_bench._core_for(task, not a.quiet)
     fopts = FieldOptions(in_troi=a.prior == "in-troi")
     progress = not a.quiet and sys.stderr.isatty()

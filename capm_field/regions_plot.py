@@ -14,7 +14,7 @@ import sys
 import numpy as np
 
 from . import cli_args
-from .config import ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
+from .config import TASK_FLAGS, ArmConfig, ReachabilityConfig, RobotConfig, TaskConfig, build
 from .errors import UserError, check_output
 from .reachability import get_maps, problem_type
 from .robot_model import RobotModel
@@ -54,7 +54,7 @@ def main(argv: list[str]) -> int:
         raise UserError(f"--mpoi-offset must be a finite distance in [0, {MAX_MPOI_OFFSET:g}] m, got {a.mpoi_offset:g}")
     if not a.out.lower().endswith(".png"):
         raise UserError(f"--out must name a .png file, got {a.out!r}")
-    task = build(TaskConfig, "task", delta=a.delta, eps_min=a.eps_min, eps_max=a.eps_max)
+    task = build(TaskConfig, "task", TASK_FLAGS, delta=a.delta, eps_min=a.eps_min, eps_max=a.eps_max)
     robot = RobotModel(RobotConfig(arm=ArmConfig(urdf=a.urdf)) if a.urdf else RobotConfig())
     maps = get_maps(robot, task, ReachabilityConfig(), progress=lambda m: print(f"reachability maps: {m}", file=sys.stderr))
     try:

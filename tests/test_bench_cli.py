@@ -52,9 +52,12 @@ def test_bench_cli_json(tmp_path):
     [
         (["bench", "--planners", "a,q"], "unknown planner 'q'"),
         (["bench", "--radius-range=-0.2,0.3"], "--radius-range"),
-        (["bench", "--delta", "0"], "task.delta"),
-        (["bench", "--delta", "1.5"], "task.delta"),
-        (["bench", "--eps-min", "0.2", "--eps-max", "0.1"], "eps_min"),
+        # the option is named, not the config key it sets (was "task.delta", "task: Value error, eps_min …")
+        (["bench", "--delta", "0"], "error: --delta: Input should be greater than 0"),
+        (["bench", "--delta", "1.5"], "error: --delta: Input should be less than or equal to 1"),
+        (["bench", "--eps-min", "0.2", "--eps-max", "0.1"], "error: --eps-min (0.2) must not exceed --eps-max (0.1)"),
+        (["regions", "--delta", "-1"], "error: --delta: Input should be greater than 0"),
+        (["bench-fields", "--gamma", "inf"], "error: --gamma: Input should be a finite number"),
         (["bench", "--urdf", "/no/such/z1.urdf"], "URDF file not found"),
         (["regions", "--radius", "-0.3"], "--radius must be positive"),
         (["frobnicate"], "unknown command"),
