@@ -27,22 +27,27 @@ import numpy as np
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
 from capm_field.detector import ground_centre, roi_from_troi
+from capm_field.roi import Roi
 import capm_field.detector as _det
 
 DETECT = _det.detect_centre
+ALT_TAKES_ROI = False  # set by _load_detector
 
 
 def _load_detector(path: str) -> None:
     """Use detect_centre from another detector file (A/B comparisons with an older version)."""
     import importlib.util
 
-    global DETECT
+    global DETECT, ALT_TAKES_ROI
     spec = importlib.util.spec_from_file_location("capm_field._detector_alt", path)
     mod = importlib.util.module_from_spec(spec)
     mod.__package__ = "capm_field"
     sys.modules[spec.name] = mod
     spec.loader.exec_module(mod)
     DETECT = mod.detect_centre
+    # a file importing today's capm_field.roi is given the same Roi as today's detector (its ground
+    # scale weights the plant choice); one with a Roi class of its own gets the bare conic
+    ALT_TAKES_ROI = getattr(mod, "Roi", None) is Roi
 from sim_bench.perception_bench import WRONG_MM, make_case
 
 CAM = PinholeCamera.from_config(CameraConfig())
@@ -77,11 +82,12 @@ def evaluate(args) -> dict | None:
     t0 = time.perf_counter()
     if DETECT is _det.detect_centre:
         det = DETECT(img, roi, debug=dbg)
-    else:  # another detector file: its own Roi class (pass the conic), maybe no debug argument
+    else:  # another detector file: maybe its own Roi class (then the conic), maybe no debug argument
+        arg = roi if ALT_TAKES_ROI else roi.conic
         try:
-            det = DETECT(img, roi.conic, debug=dbg)
+            det = DETECT(img, arg, debug=dbg)
         except TypeError:
-            det = DETECT(img, roi.conic)
+            det = DETECT(img, arg)
     lat = time.perf_counter() - t0
     row = {"i": i, "kind": case.kind, "reason": det.reason, "conf": det.confidence, "lat_ms": lat * 1000,
            "pixel": det.pixel, "method": dbg.get("method"), "roundness": dbg.get("roundness")}
