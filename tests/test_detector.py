@@ -208,8 +208,9 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
     """A bench clover (seed 5 case 27) whose trefoils pass the fan test from a vote peak on the
     plant's rim; its leaf axes converge at 6 points, and seen from the peak they span 85–95°: wider
     than the dense grass fans of that many peaks (FAN_DENSE_GAP). With the rule it is located
-    13.0 mm off (42.5 mm as a fan). (Case 147, the other clover the rule was made for, has been
-    located by its trefoil hubs without the rule too since −a* follows CIE's formulas, session 34.)"""
+    13.0 mm off (42.5 mm as a fan; since session 58, whose second look also runs on it, 42.9 mm as a
+    `wide_fan`, the same test at the leaves' scale). (Case 147, the other clover the rule was made for, has
+    been located by its trefoil hubs without the rule too since −a* follows CIE's formulas, session 34.)"""
     import capm_field.fan_apex as fan
 
     locate = _bench_weed(seed, index)
@@ -217,7 +218,7 @@ def test_clover_of_many_vote_peaks_is_no_fan(seed: int, index: int, monkeypatch)
     assert err < 0.015 and method != "fan_apex", (err, method)
     monkeypatch.setattr(fan, "FAN_DENSE_GAP", 0.0)
     err, method = locate()
-    assert err > 0.03 and method == "fan_apex", (err, method)
+    assert err > 0.03 and method in ("fan_apex", "wide_fan"), (err, method)
 
 
 @pytest.mark.parametrize("seed, index", [(6, 214), (7, 74)])
@@ -309,10 +310,14 @@ def test_leaf_axis_votes_spread_over_the_plant_do_not_pull_the_tree_median(seed:
     8–12 % on rosettes and grass fans whose axes meet), yet their maximum decided the tree
     median: 31.0, 17.0 and 24.3 mm off. Weighted by how concentrated they are (VOTE_CONC): 4.3,
     3.3 and 5.9 mm. (Measured with every tip counting 1: since `TIP_SPREAD` the grass's bunched tips
-    count less and its answer is 30.9 mm off, a loss its comment counts.)"""
+    count less and its answer is 30.9 mm off, a loss its comment counts. Since session 58 the second
+    look takes the grass, 7.1 mm off by `fan_apex`: the first look's plant is kept here as before.)"""
+    import capm_field.detector as detector
     import capm_field.tree_median as tm
 
     monkeypatch.setattr(tm, "TIP_SPREAD", 0.0)
+    monkeypatch.setattr(detector, "PALE_G90", 0.05)  # (session 58's second look on pale first choices)
+    monkeypatch.setattr(detector, "WHOLE_GAIN", 1.5)
     locate = _bench_weed(seed, index, kind)
     err, method = locate()
     assert err < 0.01 and method == "tree_median", (err, method)
