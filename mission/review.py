@@ -33,6 +33,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import McapReader, RrdReader
 
+from capm_field.cli_args import count
 from capm_field.cli_args import path as cli_path
 from capm_field.errors import UserError, check_output, terminal_safe
 
@@ -435,15 +436,8 @@ def _run_child(cmd: list[str]) -> int:
                 proc.wait()
 
 
-def _port(text: str) -> int:
-    """A TCP port, 1–65535 (0 would let the viewer pick one, and the address printed would be wrong)."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a port number: {text[:30]!r}") from None
-    if not 1 <= n <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is 1-65535, got {text[:30]}")
-    return n
+# a TCP port, 1–65535 (0 would let the viewer pick one, and the address printed would be wrong)
+_port = count(1, 65535)
 
 
 def main(argv: list[str] | None = None) -> int:
