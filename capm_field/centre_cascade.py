@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-from . import axis_votes, compound_leaf, fan_apex, leaf_axes, plant_centre, stalks, straw_shape, tree_median
+from . import axis_votes, compound_leaf, fan_apex, leaf_axes, plant_centre, stalks, star_centre, straw_shape, tree_median
 from .components import components
 from .roi import Roi, roi_mask
 from .vegetation import cap_clipped, pooled_index, resize_down, vegetation_index
@@ -34,6 +34,7 @@ FINE_STALK_PX = 200  # (0: off) plant windows of ≥ this many image px whose st
 # 300 frames where it runs. From 100 px windows: bench seed 3 a clover 8.3 → 27.9 mm; for every plant, not
 # only compound-leaved ones: a field-photo fat-hen's leaf veins and a stone's edge taken for stalks (0.02 →
 # 0.57 S)
+STAR_CHECK = True  # `star_centre.star_check` on every answer (session 59)
 STALK_PEAKS = 2  # leaf-axis vote peaks (`axis_votes.vote_peaks`) from which stalks are looked for
 
 
@@ -288,6 +289,12 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         uv, ntips, sharp = tree_median.tree_median(plant, vi, None, votes if fine else axis_votes.axis_votes(vi, plant, size, scale))
         if uv is None:
             return None, 0, 0.0
+    if STAR_CHECK:
+        # an answer from which most of a star-shaped plant is out of sight (a leaf's midrib taken
+        # for a petiole, a median pulled onto one leaf): the point the plant radiates from
+        star = star_centre.star_check(plant, uv)
+        if star is not None:
+            uv, method = star, f"{method}+star"
     if debug is not None:
         debug["method"] = method
         debug["roundness"] = roundness
