@@ -45,8 +45,9 @@ def _targets(plant: np.ndarray) -> np.ndarray:
 
 def _seen(grown: np.ndarray, C: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Share of the targets T (n, 2) seen from each point of C (m, 2) along lines inside `grown`:
-    the compiled loop (it stops at a line's first sample off the plant: ~4 ms for 700 points
-    against ~100 ms in numpy), else numpy, in the same float32 arithmetic: the same shares."""
+    the compiled loop (it stops at a line's first sample off the plant; a drawn disc of ~700
+    points, where no line stops early, 42 against 420 ms in numpy, the other core busy), else
+    numpy, in the same float32 arithmetic: the same shares."""
     if _seen_loop is not None:
         return _seen_loop(np.ascontiguousarray(grown, np.uint8), np.ascontiguousarray(C, np.float32),
                           np.ascontiguousarray(T, np.float32), _tk())
