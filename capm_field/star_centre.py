@@ -108,10 +108,13 @@ def star_point(plant: np.ndarray, at_least: float = 0.0) -> tuple[np.ndarray, fl
     """(the star centre, the share its best point sees), or None for an empty or huge mask, or
     when no point of a coarser grid (COARSE) sees at least `at_least` − COARSE_SLACK (a clover
     whose petioles are missing from the mask: its map is not made, ~10 ms)."""
+    return _star(plant, _grown(plant), _targets(plant), at_least)
+
+
+def _star(plant: np.ndarray, grown: np.ndarray, T: np.ndarray, at_least: float) -> tuple[np.ndarray, float] | None:
     C = _candidates(plant, STRIDE)
     if len(C) == 0 or len(C) > MAX_CANDIDATES:
         return None
-    grown, T = _grown(plant), _targets(plant)
     if at_least > 0 and float(_seen(grown, _candidates(plant, COARSE), T).max()) < at_least - COARSE_SLACK:
         return None
     V = _seen(grown, C, T)
@@ -121,10 +124,13 @@ def star_point(plant: np.ndarray, at_least: float = 0.0) -> tuple[np.ndarray, fl
 
 def star_check(plant: np.ndarray, uv: np.ndarray) -> np.ndarray | None:
     """The star centre if it should replace the answer uv (see the module's docstring), else None."""
-    v = visibility(plant, uv)
+    if not plant.any():
+        return None
+    grown, T = _grown(plant), _targets(plant)
+    v = float(_seen(grown, np.asarray(uv, np.float32).reshape(1, 2), T)[0])
     if v >= LOW:  # (the answer already sees ≥ LOW ≥ LOW × any best: the map is not needed)
         return None
-    got = star_point(plant, STAR_MIN)
+    got = _star(plant, grown, T, STAR_MIN)
     if got is None:
         return None
     X, best = got

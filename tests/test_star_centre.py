@@ -103,6 +103,7 @@ def test_a_plant_that_is_not_star_shaped_is_left_to_the_estimators() -> None:
 def test_empty_and_huge_masks_give_no_star() -> None:
     assert sc.visibility(np.zeros((10, 10), bool), np.array([5.0, 5.0])) == 0.0
     assert sc.star_point(np.zeros((10, 10), bool)) is None
+    assert sc.star_check(np.zeros((10, 10), bool), np.array([5.0, 5.0])) is None
     assert sc.star_point(np.ones((200, 200), bool)) is None  # over MAX_CANDIDATES
 
 
