@@ -163,11 +163,16 @@ def _srgb_linear(c: np.ndarray) -> np.ndarray:
 
 
 def _cie_f(t: np.ndarray) -> np.ndarray:
-    """CIELAB's f, in place on float32 `t`: ∛t above (6/29)³, else t/(3 (6/29)²) + 4/29."""
+    """CIELAB's f, in place on float32 `t`: ∛t above (6/29)³, else t/(3 (6/29)²) + 4/29.
+
+    The cube root is OpenCV's vectorised pow (within 2 ulp of `np.cbrt`, 1.8e-7 at most on 0..1):
+    ~0.4 ms for 0.3 MP against 4.5 ms for `np.cbrt`, a libm call per element (session 60; it was
+    an eighth of the detector's time on bench seed 0)."""
     lo = float(t.min()) <= _CIE_EPS if t.size else False
     low = t <= _CIE_EPS if lo else None
     lin = t * np.float32(1.0 / (3 * (6 / 29) ** 2)) + np.float32(4 / 29) if lo else None
-    np.cbrt(t, out=t)
+    if t.size:
+        cv2.pow(t, 1.0 / 3.0, dst=t)
     if lo:
         np.copyto(t, lin, where=low)
     return t
