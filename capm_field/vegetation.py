@@ -129,8 +129,8 @@ def neg_a_star(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
 
     a* = 500 (f(X/Xn) − f(Y)), f(t) = ∛t above (6/29)³, else t/(3 (6/29)²) + 4/29, with X and Y
     linear in the linearised sRGB channels. Each channel's gain, clipping and sRGB linearisation
-    is one 256-entry table for 8-bit input, so only two channel sums and two cube roots are left:
-    1.2–1.5 ms for a 0.25 MP image against 2.5–4 ms for OpenCV's float Lab conversion (the same
+    is one 256-entry table for 8-bit input, so only two channel sums and two cube roots (`_cie_f`) are
+    left: 1.2–1.5 ms for a 0.25 MP image against 2.5–4 ms for OpenCV's float Lab conversion (the same
     frames, session 34, idle and loaded VM), which is also approximate (OpenCV 5.0: its
     linearisation is up to 0.4 % off, −a*/100 up to 0.007, and it changes with OpenCV's version).
     """
