@@ -333,6 +333,22 @@ def test_leaf_axis_votes_spread_over_the_plant_do_not_pull_the_tree_median(seed:
     assert err > 0.015 and method == "tree_median", (err, method)
 
 
+@pytest.mark.parametrize("seed, index, name, old", [(11, 207, "G_GAP", 4.5), (7, 155, "G_HUB", 0.06)])
+def test_clover_trefoils_to_one_side_or_faint_keep_their_rays(seed: int, index: int, name: str, old: float, monkeypatch) -> None:
+    """Bench seed 11 case 207: three trefoils on one side of the centre (their largest gap round
+    it 4.54 rad); seed 7 case 155: four faint ones (mean hub strength 0.060). Their rays meet at
+    the centre: 4.1 and 5.9 mm off. Under session 59's gate (gap ≤ 4.5 rad, strength ≥ 0.06)
+    `compound_centre` declined both and the medians of the parts answered, 31.9 and 36.6 mm off."""
+    import capm_field.compound_leaf as cl
+
+    locate = _bench_weed(seed, index)
+    err, method = locate()
+    assert err < 0.010 and method == "compound_centre", (err, method)
+    monkeypatch.setattr(cl, name, old)
+    err, method = locate()
+    assert err > 0.030 and method != "compound_centre", (err, method)
+
+
 def test_clover_of_small_trefoils_with_one_vote_peak_gets_its_hubs(monkeypatch) -> None:
     """Bench seed 7 case 23: small trefoils on long tan petioles that neither look segments.
     The plant reads as thin (r 0.021) and its leaf axes show one vote peak, so the hub estimators
