@@ -1497,6 +1497,31 @@ def test_stalk_centre_declines_a_single_blob_and_lines_outside_the_leaves() -> N
     assert X is not None and math.hypot(X[0] - 114, X[1] - 40) < 6, X
 
 
+def test_faint_stalks_are_measured_against_the_soil_not_against_straws(monkeypatch) -> None:
+    """Three leaves on long faint stalks meeting out among them, two straight straws in the soil
+    round the plant: the soil's reference line strength is its 99th percentile capped at
+    TAIL_K × its 90th (`stalks._soil_ref`), so the straws (and the stalks' own middle parts, which
+    lie as far from the leaves as the soil it is measured on) do not lift it over the stalks.
+    Uncapped, the stalks are not found (bench seed 4 case 159, a clover, 24.0 → 0.8 mm)."""
+    import capm_field.stalks as stalks
+
+    rng = np.random.default_rng(7)
+    g = cv2.GaussianBlur((0.5 + 0.02 * rng.standard_normal((240, 240))).astype(np.float32), (0, 0), 0.8)
+    leaves = np.zeros((240, 240), np.uint8)
+    c = (120, 130)
+    for x, y, r in ((70, 80, 16), (175, 85, 14), (115, 45, 13)):
+        cv2.circle(leaves, (x, y), r, 1, -1)
+        d = (np.array(c, float) - (x, y)) / math.hypot(c[0] - x, c[1] - y)
+        cv2.line(g, (round(x + d[0] * (r - 2)), round(y + d[1] * (r - 2))), c, 0.6, 1, cv2.LINE_AA)
+    for x0, y0, a in ((20, 210, 0.4), (200, 200, 2.0)):  # straws, far stronger lines than the stalks
+        cv2.line(g, (x0, y0), (round(x0 + 30 * math.cos(a)), round(y0 - 30 * math.sin(a))), 0.85, 2, cv2.LINE_AA)
+    lv = leaves > 0
+    X = stalks.stalk_points(g, np.zeros_like(g), lv, lv)[0]
+    assert X is not None and math.hypot(X[0] - c[0], X[1] - c[1]) < 5, X
+    monkeypatch.setattr(stalks, "TAIL_K", 0.0)
+    assert stalks.stalk_points(g, np.zeros_like(g), lv, lv)[0] is None
+
+
 def test_lone_stalk_centre_is_its_end_at_the_rest_of_the_plant() -> None:
     """One stalk between a lone leaf and the rest of the plant (three overlapping leaves), no
     second stalk to meet: the centre is the stalk's end on the side of the rest (bench seed 3 case
