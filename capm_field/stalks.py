@@ -42,6 +42,7 @@ TAIL_K = 3.0  # `_soil_ref`: the soil's 99th percentile of agreeing strength at 
 # bench seeds 0–11: 5 answers moved, 3 clovers better (24.0 → 0.8, 14.2 → 2.3, 12.1 → 5.9 mm), none worse; at 2.0,
 # 11 moved, 4 better, 3 worse (a grass 4.0 → 25.5 mm). Held out (field photos seeds 0–1, other renderer seeds
 # 0–1, photo-like seed 3): the same but the other renderer's clovers with a ROI, median 0.033 → 0.024 S
+TAIL_FLOOR = 10.0  # ... and at least 1/this × its 99th
 MAX_PX = 100  # longest side of the plant window on the stalk grid (the image is shrunk beyond)
 
 
@@ -85,10 +86,12 @@ def _soil_ref(strength: np.ndarray) -> float:
     middle of the plant's own long stalks (as far from the leaves as that soil), are the soil's
     strongest 1 % on their own and would lift the reference to their strength, over the fainter
     stalks sought; the soil's texture alone has a 99th percentile ~1.7–4.9× its 90th (p10–p90 of
-    bench seed 0's stalk searches)."""
+    bench seed 0's stalk searches). Never below 1/TAIL_FLOOR of the 99th percentile: a soil flat in
+    most of the window (clipped, or blurred) has a 90th percentile near 0, and its few textured pixels
+    would all read as lines."""
     p99 = percentile(strength, 99)
     if TAIL_K > 0:
-        p99 = min(p99, TAIL_K * percentile(strength, 90))
+        p99 = max(min(p99, TAIL_K * percentile(strength, 90)), p99 / TAIL_FLOOR)
     return max(p99, 1e-6)
 
 

@@ -1522,6 +1522,24 @@ def test_faint_stalks_are_measured_against_the_soil_not_against_straws(monkeypat
     assert stalks.stalk_points(g, np.zeros_like(g), lv, lv)[0] is None
 
 
+def test_the_soil_reference_line_strength_is_capped_but_not_to_nothing() -> None:
+    """`stalks._soil_ref`: a textured soil keeps its 99th percentile; straws in 2 % of it are capped
+    to TAIL_K × the 90th; a soil flat (zero strength) in 95 % of it is not cut below 1/TAIL_FLOOR
+    of its 99th (its few textured pixels would all read as lines)."""
+    from capm_field import stalks
+
+    rng = np.random.default_rng(3)
+    tex = np.abs(rng.standard_normal(20_000)).astype(np.float32)
+    p90, p99 = np.percentile(tex, [90, 99])
+    assert stalks._soil_ref(tex) == pytest.approx(p99, rel=0.02)
+    straw = tex.copy()
+    straw[:400] = 40.0  # 2 % of the soil: a straw's line strength
+    assert stalks._soil_ref(straw) == pytest.approx(stalks.TAIL_K * np.percentile(straw, 90), rel=0.02)
+    flat = np.zeros(20_000, np.float32)
+    flat[:1000] = tex[:1000]  # texture in 5 % of it
+    assert stalks._soil_ref(flat) == pytest.approx(np.percentile(flat, 99) / stalks.TAIL_FLOOR, rel=0.02)
+
+
 def test_lone_stalk_centre_is_its_end_at_the_rest_of_the_plant() -> None:
     """One stalk between a lone leaf and the rest of the plant (three overlapping leaves), no
     second stalk to meet: the centre is the stalk's end on the side of the rest (bench seed 3 case
