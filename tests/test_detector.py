@@ -1530,8 +1530,7 @@ def test_the_soil_reference_line_strength_is_capped_but_not_to_nothing() -> None
 
     rng = np.random.default_rng(3)
     tex = np.abs(rng.standard_normal(20_000)).astype(np.float32)
-    p90, p99 = np.percentile(tex, [90, 99])
-    assert stalks._soil_ref(tex) == pytest.approx(p99, rel=0.02)
+    assert stalks._soil_ref(tex) == pytest.approx(np.percentile(tex, 99), rel=0.02)  # (its p99 is ~1.6× its p90)
     straw = tex.copy()
     straw[:400] = 40.0  # 2 % of the soil: a straw's line strength
     assert stalks._soil_ref(straw) == pytest.approx(stalks.TAIL_K * np.percentile(straw, 90), rel=0.02)
