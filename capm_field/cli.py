@@ -60,7 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(entry(rest) or 0)
     except UserError as e:
-        print(f"capm-field {name}: error: {terminal_safe(str(e))}", file=sys.stderr)
+        # one line per problem (a MissionError reports several), each escaped on its own
+        for line in getattr(e, "problems", None) or [str(e)]:
+            print(f"capm-field {name}: error: {terminal_safe(line)}", file=sys.stderr)
         return 2
     except OSError as e:
         if e.filename is None:

@@ -122,6 +122,16 @@ def test_error_lines_name_keys_not_pydantic_internals(tmp_path, capsys):
         assert rc == 2 and ":6: " in line and len(line) < 400, line[:500]
 
 
+def test_several_problems_are_one_line_each_and_stay_escaped(tmp_path, capsys):
+    # every CLI error line was escaped as a whole: the "\n" between a MissionError's problems came
+    # out as a literal backslash-n, so several problems were one unreadable line
+    rc, err = _validate(tmp_path, GOOD + "colour: 1\nshade: 2\n\"\\e[2J\": 3\n", capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 3 and "\\n" not in err, err
+    assert all(ln.startswith("capm-field validate: error: ") for ln in lines), err
+    assert ":6: colour:" in lines[0] and ":7: shade:" in lines[1] and "\x1b" not in err, err
+
+
 def test_urdf_errors_carry_file_line_and_unknown_joint(tmp_path, capsys):
     rc, err = _validate(tmp_path, GOOD + "robot: {arm: {locked_joints: [nojoint]}}\n", capsys)
     line = _one_line(err)
