@@ -34,12 +34,17 @@ from capm_field.detector import detect_centre
 from capm_field.errors import UserError, check_output, terminal_safe, write_output
 
 from .executive import roi_for
-from .runlog import TOPICS
+from .runlog import PROTO_TOPICS, TOPICS
 from .runlog_read import ReadReport, iter_run
+from .runlog_schema import foreign_problem
 
 RIM_TOL_PX = 0.5  # rebuilt ROI rim against the logged one: more than this and the geometry is not the run's
 CAMERA = "camera"
 FIELD = "field"
+# the message each topic read here must carry: another one (a foreign or hand-made file) is skipped
+_SCHEMAS = {TOPICS[k]: f"capm.log.{v}" for k, v in PROTO_TOPICS.items()} | {
+    TOPICS["tf"]: "foxglove.FrameTransforms", TOPICS["image"]: "foxglove.CompressedImage",
+    TOPICS["calibration"]: "foxglove.CameraCalibration"}
 
 
 @dataclass
@@ -111,12 +116,22 @@ def replay(path: Path, progress: bool = True) -> tuple[list[Replayed], ReadRepor
     truth: dict[str, tuple[float, float]] = {}
     image: bytes | None = None
     out: list[Replayed] = []
+    checked: dict[Any, str | None] = {}
     for m in iter_run(path, topics, report):
         msg = m.data
+        why = foreign_problem(m.schema, msg, _SCHEMAS[m.topic], checked)
+        if why:
+            report.skip(m.topic, why, m.record)
+            if m.topic == TOPICS["image"]:
+                image = None  # the next detection's image is not the one before this
+            continue
         if m.topic == TOPICS["tf"]:
             try:
                 tree = {t.child_frame_id: (t.parent_frame_id, _matrix(t)) for t in msg.transforms}
             except ValueError:
+                tree = {}
+            except (AttributeError, TypeError) as e:  # a FrameTransforms with other fields (Foxglove's: by name only)
+                report.skip(m.topic, f"{_SCHEMAS[m.topic]} with other fields: {type(e).__name__}: {e}", m.record)
                 tree = {}
         elif m.topic == TOPICS["calibration"]:
             cal = msg
@@ -126,7 +141,11 @@ def replay(path: Path, progress: bool = True) -> tuple[list[Replayed], ReadRepor
         elif m.topic == TOPICS["truth_mpoi"]:
             truth[msg.target_id] = (msg.mpoi.x, msg.mpoi.y)
         elif m.topic == TOPICS["image"]:
-            image = bytes(msg.data)
+            try:
+                image = bytes(msg.data)
+            except (AttributeError, TypeError) as e:  # a CompressedImage with other fields
+                report.skip(m.topic, f"{_SCHEMAS[m.topic]} with other fields: {type(e).__name__}: {e}", m.record)
+                image = None
         elif m.topic == TOPICS["detection"] and msg.reason != "fault_injected":
             r = Replayed(
                 msg.target_id, m.log_time,

@@ -39,7 +39,7 @@ from capm_field.errors import UserError, check_output, terminal_safe
 
 from .runlog import PROTO_TOPICS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
-from .runlog_schema import ADDED_FIELDS, message_class
+from .runlog_schema import foreign_problem
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
 FIELD = "field"
@@ -87,32 +87,6 @@ class RunData:
     imported: int | None = None  # messages handed to Rerun's MCAP importer (set by `write_rrd`)
 
 
-def _descriptor_problem(theirs: Any, ours: Any, seen: set[str] | None = None) -> str | None:
-    """Why a message decoded with the file's descriptor `theirs` cannot be read as our `ours`
-    (a field is missing, or of another type or cardinality), else None. A hand-made or foreign
-    file may name our schema with other fields: reading them would crash. All our fields are
-    required but those added since the first run logs (`runlog_schema.ADDED_FIELDS`), which an
-    older log lacks."""
-    seen = set() if seen is None else seen
-    if ours.full_name in seen:
-        return None
-    seen.add(ours.full_name)
-    added = ADDED_FIELDS.get(ours.name, frozenset())
-    for f in ours.fields:
-        g = theirs.fields_by_name.get(f.name)
-        if g is None and f.name in added:
-            continue
-        if g is None:
-            return f"its {theirs.full_name} has no field {f.name}"
-        if g.type != f.type or g.is_repeated != f.is_repeated:
-            return f"its {theirs.full_name}.{f.name} is of another type than ours"
-        if f.message_type is not None:
-            why = _descriptor_problem(g.message_type, f.message_type, seen)
-            if why:
-                return why
-    return None
-
-
 def _body_poses(msg: Any) -> list[tuple[float, float, float]]:
     """field→body translations of a FrameTransforms message; TypeError/AttributeError when the
     file's FrameTransforms is not Foxglove's (checked here rather than against a descriptor)."""
@@ -131,19 +105,10 @@ def load_run(path: Path) -> RunData:
     checked: dict[Any, str | None] = {}  # decoded descriptor -> why it is not ours (None: it is)
     for m in iter_run(path, report=data.report):
         want = _SCHEMAS.get(m.topic)
-        if want and m.schema != want:
-            data.report.skip(m.topic, f"schema {m.schema or '(none)'!r}, expected {want}", m.record)
+        why = want and foreign_problem(m.schema, m.data, want, checked)
+        if why:
+            data.report.skip(m.topic, why, m.record)
             continue
-        if want and isinstance(m.data, (bytes, str)):  # an encoding with no decoder here (json, ...)
-            data.report.skip(m.topic, f"{want} in an encoding other than protobuf", m.record)
-            continue
-        if m.topic in _OURS:
-            desc = m.data.DESCRIPTOR
-            if desc not in checked:
-                checked[desc] = _descriptor_problem(desc, message_class(_OURS[m.topic]).DESCRIPTOR)
-            if checked[desc]:
-                data.report.skip(m.topic, f"{want} with another descriptor: {checked[desc]}", m.record)
-                continue
         if m.log_time > _TIME_MAX_NS:  # np.datetime64 / Rerun timelines are int64 ns
             data.report.skip(m.topic, f"log_time {m.log_time} past 2**63 - 1 ns, beyond a Rerun timeline", m.record)
             continue

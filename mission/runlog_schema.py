@@ -14,6 +14,7 @@ are sub-messages (proto3 gives message fields presence): an unset `pixel` means 
 from __future__ import annotations
 
 from functools import cache
+from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
@@ -163,3 +164,46 @@ def message_class(name: str) -> type:
 
 def full_name(name: str) -> str:
     return f"{PACKAGE}.{name}"
+
+
+def descriptor_problem(theirs: Any, ours: Any, seen: set[str] | None = None) -> str | None:
+    """Why a message decoded with the file's descriptor `theirs` cannot be read as our `ours`
+    (a field is missing, or of another type or cardinality), else None. A hand-made or foreign
+    file may name our schema with other fields: reading them would crash. All our fields are
+    required but those added since the first run logs (`ADDED_FIELDS`), which an older log lacks."""
+    seen = set() if seen is None else seen
+    if ours.full_name in seen:
+        return None
+    seen.add(ours.full_name)
+    added = ADDED_FIELDS.get(ours.name, frozenset())
+    for f in ours.fields:
+        g = theirs.fields_by_name.get(f.name)
+        if g is None and f.name in added:
+            continue
+        if g is None:
+            return f"its {theirs.full_name} has no field {f.name}"
+        if g.type != f.type or g.is_repeated != f.is_repeated:
+            return f"its {theirs.full_name}.{f.name} is of another type than ours"
+        if f.message_type is not None:
+            why = descriptor_problem(g.message_type, f.message_type, seen)
+            if why:
+                return why
+    return None
+
+
+def foreign_problem(schema: str, data: Any, want: str, checked: dict[Any, str | None]) -> str | None:
+    """Why a message read from a log under `schema` (decoded to `data`) is not the `want` message
+    a reader of a topic expects, else None: a foreign or hand-made file may carry anything on our
+    topics. Our messages are checked field by field (`checked`: descriptor -> problem, a cache);
+    Foxglove's by name only, so their readers still catch what their fields lack."""
+    if schema != want:
+        return f"schema {schema or '(none)'!r}, expected {want}"
+    if isinstance(data, (bytes, str)):  # an encoding with no decoder here (json, ...)
+        return f"{want} in an encoding other than protobuf"
+    if want.startswith(PACKAGE + "."):
+        desc = data.DESCRIPTOR
+        if desc not in checked:
+            checked[desc] = descriptor_problem(desc, message_class(want.removeprefix(PACKAGE + ".")).DESCRIPTOR)
+        if checked[desc]:
+            return f"{want} with another descriptor: {checked[desc]}"
+    return None

@@ -189,3 +189,40 @@ def test_cli_error_lines_are_escaped(capsys, tmp_path):
     rc = cli.main(["detect-replay", str(bad)])
     err = capsys.readouterr().err
     assert rc == 2 and "\x1b" not in err and "\\x1b[2J" in err and err.count("\n") == 1
+
+
+def test_topics_carrying_another_message_are_skipped_with_a_note(capsys, tmp_path):
+    """A hand-made or foreign log whose /detection, /tf, /plan, /camera/image, … carry another
+    message, or our message's name with other fields (as `review` already skips): AttributeError /
+    ValueError tracebacks, exit 1. Now skipped and counted, said in a note, exit 2."""
+    from google.protobuf import descriptor_pb2
+    from mcap.writer import Writer
+
+    from mission.runlog_schema import descriptor_set_bytes, message_class
+
+    T = descriptor_pb2.FieldDescriptorProto
+    fd = descriptor_pb2.FileDescriptorProto(name="old.proto", package="capm.log", syntax="proto3")
+    m = fd.message_type.add(name="Detection")  # no `pixel`: HasField("pixel") raised
+    for i, name in enumerate(("target_id", "reason"), 1):
+        m.field.add(name=name, number=i, type=T.TYPE_STRING, label=T.LABEL_OPTIONAL)
+    other_detection = descriptor_pb2.FileDescriptorSet(file=[fd]).SerializeToString()
+    ours = descriptor_set_bytes()
+    energy = message_class("Energy")(total=1.0, target_id="W1").SerializeToString()
+    detection = message_class("Detection")(target_id="W1", reason="no_plant").SerializeToString()
+    cases = [(t, "capm.log.Energy", ours, energy) for t in
+             ("/detection", "/tf", "/plan", "/regions", "/camera/image", "/camera/calibration", "/truth/mpoi")]
+    cases.append(("/detection", "capm.log.Detection", other_detection, b"\x0a\x02W1\x12\x01x"))
+    for topic, sname, sdata, payload in cases:
+        p = tmp_path / "foreign.mcap"
+        with p.open("wb") as f:
+            w = Writer(f)
+            w.start(profile="", library="test")
+            odd = w.register_channel(topic, "protobuf", w.register_schema(sname, "protobuf", sdata))
+            det = w.register_channel("/detection", "protobuf", w.register_schema("capm.log.Detection", "protobuf", ours))
+            w.add_message(odd, 1, payload, 1)
+            w.add_message(det, 2, detection, 2)  # one of ours after it: still read
+            w.finish()
+        rc = cli.main(["detect-replay", str(p), "--quiet"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "1 message(s) skipped, not readable as this run log's" in err, (topic, err)
+        assert "stored no images" in err, (topic, err)
