@@ -119,8 +119,9 @@ class CameraConfig(_Frozen):
 
     width: int = Field(1280, gt=0, le=MAX_PIXELS, description="u_max (px)")
     height: int = Field(720, gt=0, le=MAX_PIXELS, description="v_max (px)")
-    fx: float = Field(1000.0, gt=0.0, le=1e5, description="focal length (px)")
-    fy: float = Field(1000.0, gt=0.0, le=1e5, description="focal length (px)")
+    # under 1 px is a unit error (metres: a 4 mm lens is 0.004), and 1e-20 px made the maps NaN
+    fx: float = Field(1000.0, ge=1.0, le=1e5, description="focal length (px)")
+    fy: float = Field(1000.0, ge=1.0, le=1e5, description="focal length (px)")
     cx: float | None = Field(None, ge=-1e5, le=1e5, description="principal point (px); default: image centre")
     cy: float | None = Field(None, ge=-1e5, le=1e5, description="principal point (px); default: image centre")
     distortion: tuple[float, ...] = Field(

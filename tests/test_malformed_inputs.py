@@ -132,6 +132,18 @@ def test_config_models_refuse_yes_no_and_implausible_values():
     assert BodyConfig(max_speed=1.6).max_speed == 1.6 and ArmConfig().stow_joints[2] == -0.005
 
 
+def test_a_focal_length_under_a_pixel_is_refused(tmp_path, capsys):
+    """fx = 1e-20 px passed every bound: the maps came out NaN and `run` flew the mission on them
+    (0 of 1 flamed, exit 0; with fy too, `internal error: AssertionError`, exit 1) instead of
+    refusing the file. A focal length under 1 px is a unit error (metres: a 4 mm lens is 0.004)."""
+    for kw in ({"fx": 1e-20}, {"fy": 0.004}):
+        with pytest.raises(ValueError):
+            CameraConfig(**kw)
+    rc, err = _validate(tmp_path, GOOD + "robot: {camera: {fx: 1.0e-20}}\n", capsys)
+    assert rc == 2 and ":6: robot.camera.fx: Input should be greater than or equal to 1" in err, err
+    assert CameraConfig(fx=1.0, fy=1.0).fx == 1.0
+
+
 def test_run_with_an_unplannable_robot_is_exit_2_and_writes_nothing(tmp_path, capsys):
     """Values inside every bound whose geometry still fails (here: a flame that may not tilt at
     all) crashed the planning core with a traceback; now one line, exit 2, no output."""
