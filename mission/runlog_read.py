@@ -112,6 +112,8 @@ def decode_cdr_string(data: bytes) -> str:
     """std_msgs/String from CDR (encapsulation header + uint32 length incl. NUL + bytes)."""
     little = data[1] == 1
     (n,) = struct.unpack("<I" if little else ">I", data[4:8])
+    if 8 + n > len(data):  # (a slice would read it as shorter text; Rerun's importer refuses it)
+        raise ValueError(f"CDR string of {n} bytes in a payload of {len(data)}")
     return data[8 : 8 + n].rstrip(b"\x00").decode("utf-8")
 
 

@@ -389,3 +389,24 @@ def test_payloads_rerun_cannot_decode_are_left_out_and_an_unfinished_recording_i
     assert rc == 2 and "Rerun did not finish the recording (no footer" in err and "nothing written" in err, err
     assert out.read_bytes() == b"an earlier recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap", "good.mcap", "out.rrd"]
+
+
+def test_a_robot_description_whose_length_overruns_its_payload_is_skipped(tmp_path, capfd):
+    """A CDR String whose length field runs past the payload read as "" here, while Rerun's importer
+    logged `failed to deserialize CDR message` and review said "wrote", no note."""
+    from mission.runlog_read import decode_cdr_string
+
+    with pytest.raises(ValueError):
+        decode_cdr_string(b"\x00\x01\x00\x00\xff\xff\xff\x7f")
+    assert decode_cdr_string(b"\x00\x01\x00\x00\x03\x00\x00\x00ab\x00") == "ab"
+    p = tmp_path / "urdf.mcap"
+    with p.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="test")
+        cid = w.register_channel("/robot_description", "cdr", w.register_schema("std_msgs/msg/String", "ros2msg", b"string data"))
+        w.add_message(cid, T0, b"\x00\x01\x00\x00\xff\xff\xff\x7f", T0)
+        w.add_message(cid, T0 + 1, b"\x00\x01\x00\x00\x03\x00\x00\x00ab\x00", T0 + 1)
+        w.finish()
+    rc = cli.main(["review", str(p), "--rrd", str(tmp_path / "o.rrd")])
+    err = capfd.readouterr().err
+    assert rc == 0 and "1 message(s) skipped" in err and "failed to deserialize" not in err, err
