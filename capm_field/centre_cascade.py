@@ -104,7 +104,8 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
     """Centre of the plant in `box` (full-image pixels). Returns (uv, n_tips, sharpness); `debug`
     gets the name of the estimator that gave it under "method". `straw_colour`: the plant's colour
     is not a green blade's (`candidates.green_blade`), so if it is one straight piece of even width
-    (`straw_shape.lone_bar`) it is straw: (None, 0, 0.0) as for no plant."""
+    (`straw_shape.lone_bar`), or two crossing (`straw_shape.crossed_bars`), it is straw: (None, 0, 0.0)
+    as for no plant."""
     H, W = img.shape[:2]
     bx0, by0, bx1, by1 = box
     m = 0.12 * max(bx1 - bx0, by1 - by0) + 2
@@ -147,10 +148,12 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # has not told the plant from its soil, and its distance transform has no zero to measure from)
         return None, 0, 0.0
     ys_, xs_ = np.nonzero(plant)
-    if straw_colour and straw_shape.lone_bar(xs_, ys_):  # one straight piece of even width, not green: straw
-        if debug is not None:
-            debug["method"] = "lone_bar"
-        return None, 0, 0.0
+    if straw_colour:  # one straight piece of even width, or two crossing, not green: straw
+        bar = "lone_bar" if straw_shape.lone_bar(xs_, ys_) else "crossed_bars" if straw_shape.crossed_bars(xs_, ys_) else None
+        if bar:
+            if debug is not None:
+                debug["method"] = bar
+            return None, 0, 0.0
     dtp = cv2.distanceTransform(plant.astype(np.uint8), cv2.DIST_L2, 3)
     size = math.hypot(np.ptp(xs_) + 1, np.ptp(ys_) + 1)
     roundness = float(dtp[plant].mean()) / size  # mean half-width of the parts / plant size
