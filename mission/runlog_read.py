@@ -125,6 +125,8 @@ def check_mcap(path: str | Path) -> Path:
         p = p / "run.mcap"
     elif p.is_dir():
         raise UserError(f"{p} is a directory without a run.mcap")
+    if p.exists() and not p.is_file():  # a FIFO, a device: reading one would block or never end
+        raise UserError(f"not a regular file: {p}")
     if not p.is_file():
         raise UserError(f"run log not found: {p}")
     with p.open("rb") as f:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -13,6 +14,7 @@ from rerun.chunk import RrdReader
 from capm_field import cli
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig
+from capm_field.errors import UserError
 from capm_field.keystates import TROI
 from mission.review import main as review_main
 from mission.runlog import RunLog
@@ -115,3 +117,15 @@ def test_target_ids_with_slashes_and_spaces_are_one_entity_each(tmp_path, robot)
     ents = rrd_contents(out)
     troi = sorted(e for e in ents if e.startswith("/review/troi/") and "LineStrips3D:strips" in ents[e])
     assert troi == ["/review/troi/W.1", "/review/troi/plot\\ A\\/3"], troi  # escaped: one part each
+
+
+@pytest.mark.parametrize("make", ["fifo", "missing"])
+def test_a_run_log_that_is_not_a_regular_file_is_said_so(tmp_path, make):
+    """A FIFO (or a device) as the run log was "run log not found": it exists, and reading it would block."""
+    from mission.runlog_read import check_mcap
+
+    p = tmp_path / "run.mcap"
+    if make == "fifo":
+        os.mkfifo(p)
+    with pytest.raises(UserError, match="not a regular file" if make == "fifo" else "run log not found"):
+        check_mcap(p)
