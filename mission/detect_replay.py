@@ -34,17 +34,13 @@ from capm_field.detector import detect_centre
 from capm_field.errors import UserError, check_output, terminal_safe, write_output
 
 from .executive import roi_for
-from .runlog import PROTO_TOPICS, TOPICS
+from .runlog import SCHEMAS, TOPICS
 from .runlog_read import ReadReport, iter_run
 from .runlog_schema import foreign_problem
 
 RIM_TOL_PX = 0.5  # rebuilt ROI rim against the logged one: more than this and the geometry is not the run's
 CAMERA = "camera"
 FIELD = "field"
-# the message each topic read here must carry: another one (a foreign or hand-made file) is skipped
-_SCHEMAS = {TOPICS[k]: f"capm.log.{v}" for k, v in PROTO_TOPICS.items()} | {
-    TOPICS["tf"]: "foxglove.FrameTransforms", TOPICS["image"]: "foxglove.CompressedImage",
-    TOPICS["calibration"]: "foxglove.CameraCalibration"}
 
 
 @dataclass
@@ -119,7 +115,7 @@ def replay(path: Path, progress: bool = True) -> tuple[list[Replayed], ReadRepor
     checked: dict[Any, str | None] = {}
     for m in iter_run(path, topics, report):
         msg = m.data
-        why = foreign_problem(m.schema, msg, _SCHEMAS[m.topic], checked)
+        why = foreign_problem(m.schema, msg, SCHEMAS[m.topic], checked)
         if why:
             report.skip(m.topic, why, m.record)
             if m.topic == TOPICS["image"]:
@@ -131,7 +127,7 @@ def replay(path: Path, progress: bool = True) -> tuple[list[Replayed], ReadRepor
             except ValueError:
                 tree = {}
             except (AttributeError, TypeError) as e:  # a FrameTransforms with other fields (Foxglove's: by name only)
-                report.skip(m.topic, f"{_SCHEMAS[m.topic]} with other fields: {type(e).__name__}: {e}", m.record)
+                report.skip(m.topic, f"{SCHEMAS[m.topic]} with other fields: {type(e).__name__}: {e}", m.record)
                 tree = {}
         elif m.topic == TOPICS["calibration"]:
             cal = msg
@@ -144,7 +140,7 @@ def replay(path: Path, progress: bool = True) -> tuple[list[Replayed], ReadRepor
             try:
                 image = bytes(msg.data)
             except (AttributeError, TypeError) as e:  # a CompressedImage with other fields
-                report.skip(m.topic, f"{_SCHEMAS[m.topic]} with other fields: {type(e).__name__}: {e}", m.record)
+                report.skip(m.topic, f"{SCHEMAS[m.topic]} with other fields: {type(e).__name__}: {e}", m.record)
                 image = None
         elif m.topic == TOPICS["detection"] and msg.reason != "fault_injected":
             r = Replayed(

@@ -37,7 +37,7 @@ from capm_field.cli_args import count
 from capm_field.cli_args import path as cli_path
 from capm_field.errors import UserError, check_output, terminal_safe
 
-from .runlog import PROTO_TOPICS, TOPICS
+from .runlog import PROTO_TOPICS, SCHEMAS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
 from .runlog_schema import foreign_problem
 
@@ -66,8 +66,7 @@ COLORS = {
 }
 _CUSTOM = {TOPICS[k] for k in ("plan", "key_state", "detection", "regions", "energy", "igniter", "truth_mpoi", "tf")}
 # the schema each topic drawn here must carry: another one (a foreign or hand-made file) is skipped
-_OURS = {TOPICS[k]: v for k, v in PROTO_TOPICS.items()}  # topic -> our message name
-_SCHEMAS = {t: f"capm.log.{v}" for t, v in _OURS.items()} | {TOPICS["tf"]: "foxglove.FrameTransforms"}
+_SCHEMAS = {t: SCHEMAS[t] for t in (*(TOPICS[k] for k in PROTO_TOPICS), TOPICS["tf"])}
 
 
 def _part(target_id: str) -> str:

@@ -88,6 +88,11 @@ PROTO_TOPICS = {
     "igniter": "IgniterStatus",
     "truth_mpoi": "TruthMpoi",
 }
+# the schema each topic that readers decode carries (a message of another one, from a foreign or
+# hand-made file, is skipped: `runlog_schema.foreign_problem`)
+SCHEMAS = {TOPICS[k]: S.full_name(v) for k, v in PROTO_TOPICS.items()} | {
+    TOPICS["tf"]: "foxglove.FrameTransforms", TOPICS["image"]: "foxglove.CompressedImage",
+    TOPICS["calibration"]: "foxglove.CameraCalibration"}
 FIELD, BODY, ARM_BASE, CAMERA, NOZZLE = "field", "body", "arm_base", "camera", "nozzle"
 
 _LEVELS = {
