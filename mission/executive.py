@@ -491,6 +491,16 @@ class Executive:
             raise MissionAborted(f"igniter: fuel low ({fuel:.1%} left{what}, reserve {self.fuel_reserve:.1%}); "
                                  f"{tid} and later targets not begun")
 
+    def _check_igniter(self, tid: str) -> None:
+        """Begin a target only with no igniter fault latched: nothing in a mission clears one
+        (a failed ignition or flame-out gets its one reset in `_flame`, a second failure stays
+        latched: burner practice), so every later target would be walked to, observed and
+        skipped at the interlock. Raises MissionAborted before the walk (a lost link is left to
+        the link checks)."""
+        fault = self.d.igniter.state().fault
+        if fault and "link_lost" not in fault:
+            raise MissionAborted(f"igniter: {fault} latched (cleared only by a reset); {tid} and later targets not begun")
+
     def _note_fuel_burnt(self, fuel_before: float, flame_s: float) -> None:
         """Learn the tank's consumption from a hold (the highest rate seen is kept)."""
         if flame_s < 0.5:
@@ -520,6 +530,7 @@ class Executive:
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
         self._check_fuel(tid)
+        self._check_igniter(tid)
         x1 = self._walk_target(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
         if self.planner.name == "a":
@@ -599,6 +610,7 @@ class Executive:
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
         self._check_fuel(tid)
+        self._check_igniter(tid)
         if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
             x1 = self._walk_target(x1)
         else:

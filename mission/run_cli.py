@@ -107,7 +107,7 @@ def _run_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", help="output directory (default: the mission's output.dir)")
     ap.add_argument("--seed", type=cli_seed, help="bench seed ≥ 0 (overrides drivers.seed)")
     ap.add_argument("--faults", help="bench fault schedule: 'random:SEED' or KIND@TARGET[,KIND@TARGET...]; '' runs without the mission's own (drivers.faults)")
-    ap.add_argument("--quiet", action="store_true", help="no progress line")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines and no result line (summary.json has the result; errors and warnings still print)")
     ap.add_argument("--force", action="store_true", help="overwrite run.mcap/summary.json already in the output directory")
     return ap
 

@@ -159,6 +159,21 @@ def test_persistent_ignition_failure_is_bounded_and_latched(core, tmp_path):
     assert len(trials) == 2  # one retry after a reset, then give up
 
 
+
+def test_a_fault_still_latched_after_the_bounded_retry_stops_the_mission(core, tmp_path):
+    """docs/faults.md: the igniter fails to light twice on A, the fault stays latched (no third
+    trial) and nothing in the mission clears it, so no later target can be flamed: the mission
+    stops before walking to B (exit 1), instead of walking and observing every remaining target
+    only to skip each at the interlock (exit 0)."""
+    result, final, _, log = run_mission(core, tmp_path, [Fault("ignition_failure", 0, params={"persist": True})], trois=THREE)
+    a, b, c = result.targets
+    assert not a.flamed and a.reason == "flame_failed:ignition_failed"
+    assert result.aborted and "igniter: ignition_failed latched" in result.aborted, result.aborted
+    assert [b.reason, c.reason] == ["mission_aborted"] * 2
+    assert b.energy == 0.0 and b.body_moves == 0  # stopped before its walk
+    assert not final["flame_on"] and not final["armed"]
+    assert check_ignition_invariant(log).ok
+
 def test_igniter_trip_from_a_host_stall_gets_one_rearmed_trial(core, tmp_path):
     """A 0.15 s host stall mid-hold: the board trips (valve shut, disarmed) and the executive
     arms once more; a second stall on the retry leaves the target unflamed, never a third trial."""
