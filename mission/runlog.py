@@ -104,6 +104,31 @@ _LEVELS = {
 }
 _ROS2_STRING = Schema(name="std_msgs/msg/String", encoding="ros2msg", data=b"string data")
 
+# The RunLog whose write is running on this thread (set in RunLog._emit with its lock held).
+# foxglove-sdk reports a failed sink write (a full disk, a file size limit) as a Python log
+# warning from inside that write: a handler that logs into the run log must not re-enter it
+# (RunLog's lock is not re-entrant: the run hung for good on it).
+_WRITING = threading.local()
+SINK_LOGGER = "foxglove.log_sink_set"  # the logger foxglove-sdk reports sink write failures on
+
+
+class _SinkErrors(logging.Filter):
+    """On foxglove's sink logger: the first write failure of a RunLog is kept as its
+    `write_error` and shown once; the same RunLog's later ones (every message after a failure
+    fails: "attempted another write after a write method failed") are dropped."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        log = getattr(_WRITING, "log", None)
+        if log is None:
+            return True
+        if log.write_error is not None:
+            return False
+        log.write_error = record.getMessage()
+        return True
+
+
+_sink_filter = _SinkErrors()
+
 
 def urdf_tree(urdf_text: str) -> dict[str, str]:
     """child link -> parent link, from the URDF's joints."""
@@ -187,6 +212,10 @@ class RunLog:
         self._static_written = False
         self.n_flushes = 0
         self.call_time_s = 0.0  # wall time spent inside RunLog calls (the logging cost)
+        self.write_error: str | None = None  # the first failed write (disk full …): the file ends there
+        sink_log = logging.getLogger(SINK_LOGGER)
+        if _sink_filter not in sink_log.filters:
+            sink_log.addFilter(_sink_filter)
 
         if (self.path.exists() or self.path.is_symlink()) and not overwrite:
             raise UserError(f"run log already exists: {self.path} (choose another --out directory)")
@@ -282,9 +311,13 @@ class RunLog:
         with self._lock:
             if self._closed:
                 return
-            if not self._static_written:
-                self._write_static(t_ns)
-            fn()
+            _WRITING.log = self
+            try:
+                if not self._static_written:
+                    self._write_static(t_ns)
+                fn()
+            finally:
+                _WRITING.log = None
             self._dirty = True
         self.call_time_s += time.perf_counter() - t0
 
@@ -543,6 +576,8 @@ class RunLogHandler(logging.Handler):
         self._now_ns = now_ns
 
     def emit(self, record: logging.LogRecord) -> None:
+        if getattr(_WRITING, "log", None) is not None:
+            return  # raised by a run log write on this thread (its own failure): cannot go into it
         try:
             text = record.getMessage()
             if record.exc_info:
