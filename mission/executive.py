@@ -480,6 +480,13 @@ class Executive:
         """Tank fraction one ξ hold is expected to burn (0 while no rate is known)."""
         return hold_fuel(self.task.xi, max(self.fuel_per_s or 0.0, self._fuel_rate_seen))
 
+    def _check_log(self, tid: str) -> None:
+        """Begin a target only while its record can be kept: a run log that stopped taking writes
+        (disk full) would leave the burns that follow unrecorded. Raises MissionAborted."""
+        err = getattr(self.log, "write_error", None) if self.log else None
+        if err:
+            raise MissionAborted(f"run log: cannot write ({err}); {tid} and later targets not begun")
+
     def _check_fuel(self, tid: str) -> None:
         """Begin a target only with its flame hold's fuel above the reserve: aborting here, before
         the walk, leaves the tank's last fuel unplanned and no weed half-burnt (a run-dry mid-hold
@@ -519,6 +526,7 @@ class Executive:
 
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
+        self._check_log(tid)
         self._check_fuel(tid)
         x1 = self._walk_target(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
@@ -598,6 +606,7 @@ class Executive:
         x1 = plan.x_b_k1
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
+        self._check_log(tid)
         self._check_fuel(tid)
         if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
             x1 = self._walk_target(x1)

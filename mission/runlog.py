@@ -302,15 +302,27 @@ class RunLog:
         with self._lock:
             if self._closed or not self._dirty:
                 return
-            self._writer.flush()
             self._dirty = False
+            if self.write_error is not None:
+                return
+            try:
+                self._writer.flush()
+            except RuntimeError as e:  # FoxgloveError (disk full …): kept for the run to report
+                self._failed(e)
+                return
             self.n_flushes += 1
+
+    def _failed(self, e: BaseException) -> None:
+        if self.write_error is None:
+            self.write_error = " ".join(str(e).split())[:300]
 
     def _emit(self, t_ns: int, fn) -> None:
         t0 = time.perf_counter()
         with self._lock:
             if self._closed:
                 return
+            if self.write_error is not None:
+                return  # the file ends at the failure: every later write fails too
             _WRITING.log = self
             try:
                 if not self._static_written:
@@ -356,7 +368,8 @@ class RunLog:
         self._emit(t_ns, lambda: self._proto[key].log(data, log_time=int(t_ns)))
 
     def close(self) -> None:
-        """Finalise the file (summary, footer). Idempotent; also runs at interpreter exit."""
+        """Finalise the file (summary, footer). Idempotent; also runs at interpreter exit. Never
+        raises for a failed write: see `write_error` (the file is then readable up to the failure)."""
         with self._lock:
             if self._closed:
                 return
@@ -364,7 +377,10 @@ class RunLog:
         self._stop.set()
         if self._flusher is not threading.current_thread():
             self._flusher.join(timeout=5.0)
-        self._writer.close()
+        try:
+            self._writer.close()
+        except RuntimeError as e:  # a write failed (disk full …): the file holds what came before
+            self._failed(e)
         atexit.unregister(self.close)
 
     @property

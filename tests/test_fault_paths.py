@@ -46,3 +46,52 @@ def test_run_log_write_failure_does_not_deadlock(tmp_path):
     assert "File too large" in r.stdout, r.stdout  # the first failure is kept for the run to report
     # one console line about it, not one per message written after it
     assert r.stderr.count("error logging message") <= 1, r.stderr[-2000:]
+
+
+_TWO = """\
+name: log-fails
+planner: c
+task: {xi: 3.0}
+field:
+  trois:
+    - {id: A, x: 1.0, y: 0.3, r: 0.22}
+    - {id: B, x: 2.3, y: 0.9, r: 0.25}
+start: {x: 0.0, y: 0.0, yaw: 0.0}
+end: {x: 3.0, y: 0.5, yaw: 0.0}
+drivers: {kind: bench, seed: 2, transport: TRANSPORT}
+output: {dir: out}
+"""
+
+
+def _limit_file_size(n: int):
+    def pre() -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (n, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+    return pre
+
+
+def test_run_whose_log_fails_stops_and_still_writes_its_summary(tmp_path, maps):
+    """`capm-field run` under `ulimit -f` (the run log's disk full mid-mission): the flush thread
+    died with a traceback, the mission went on burning weeds with nothing recorded, and at the end
+    RunLog.close() raised: traceback, no summary.json. Now the mission stops before the next target
+    (exit 1), summary.json says why, one line tells the operator, and the log reads up to the failure."""
+    import json
+
+    from mission.runlog_read import ReadReport, iter_run
+
+    m = tmp_path / "m.yaml"
+    m.write_text(_TWO.replace("TRANSPORT", "inprocess"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "capm_field.cli", "run", str(m), "--out", str(out), "--quiet"], capture_output=True,
+                       text=True, timeout=120, preexec_fn=_limit_file_size(120_000))
+    assert r.returncode == 1, (r.returncode, r.stderr[-3000:])
+    assert "Traceback" not in r.stderr, r.stderr[-3000:]
+    assert "run log" in r.stderr and "incomplete" in r.stderr, r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["log_error"], s
+    assert s["aborted"].startswith("MissionAborted: run log: cannot write"), s["aborted"]
+    assert [t["reason"] for t in s["targets"]][-1] == "mission_aborted", s["targets"]
+    rep = ReadReport()
+    msgs = list(iter_run(out / "run.mcap", report=rep))
+    assert msgs and not rep.complete, rep
