@@ -4,6 +4,7 @@ signals mid-burn, wire links frozen mid-hold): each test failed before its fix."
 from __future__ import annotations
 
 import subprocess
+import time
 import sys
 import textwrap
 
@@ -95,3 +96,81 @@ def test_run_whose_log_fails_stops_and_still_writes_its_summary(tmp_path, maps):
     rep = ReadReport()
     msgs = list(iter_run(out / "run.mcap", report=rep))
     assert msgs and not rep.complete, rep
+
+
+# ---- the body's robot side frozen (SIGSTOP) while the flame is on, wire transport --------------------
+def _wire_drivers(robot, task, trois, start, port):
+    """The wire bench of `transport: wire`, with the zenoh body server as its own process (so it
+    can be frozen or killed) and the CAN arm/igniter on a python-can virtual bus."""
+    from drivers.interfaces import DriverSet
+    from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
+    from sim_bench.bench_drivers import _scene, sample_mpois
+    from sim_bench.can_rig import CanBench
+    from sim_bench.sim_camera import SimCamera
+    from sim_bench.zenoh_body_server import spawn_server
+
+    truth = sample_mpois(trois, task, 2, True)
+    scene = _scene(trois, truth, start, 2)
+    proc = spawn_server(port, "bench", "--seed", "2")
+    cb = CanBench(robot=robot)
+    body = ZenohBody(ZenohBodyConfig.loopback(port, "bench"))
+    cam = SimCamera(scene, lambda: robot.T_field_base(body.state().pose) @ cb.arm.state().camera_pose, robot.cfg.camera,
+                    clock_ns=time.monotonic_ns)
+    return DriverSet(body, cb.arm, cb.igniter, cam), cb, proc, truth
+
+
+def test_body_side_frozen_mid_hold_puts_the_flame_out_within_the_staleness_bound(tmp_path, core):
+    """SIGSTOP of the body's robot side 0.8 s into the hold: ZenohBody.state() kept returning the
+    last State (stationary, no fault) until the stream-stall latch at half the transport lease, so
+    the interlock permitted and the flame burnt on for ~500 ms with nothing known of the body (the
+    log showed it as safe). A body state older than 0.25 s is now the fault `state_stale`, as an
+    arm state is over CAN: the interlock denies and the flame is out in about that time."""
+    import os
+    import signal
+
+    from capm_field.camera import PinholeCamera
+    from capm_field.geometry import SE2
+    from capm_field.keystates import TROI
+    from capm_field.planners import make_planner
+    from mission.executive import Executive
+    from mission.log_checks import check_ignition_invariant
+    from mission.runlog import RunLog
+    from mission.runlog_read import iter_run
+    from sim_bench.zenoh_body_server import free_port
+
+    robot, task = core.robot, core.task
+    trois, start = [TROI(1.0, 0.3, 0.22, "A")], SE2(0.0, 0.0, 0.0)
+    d, cb, proc, truth = _wire_drivers(robot, task, trois, start, free_port())
+    log = RunLog(tmp_path / "run.mcap", robot, PinholeCamera.from_config(robot.cfg.camera), bench=True)
+    ev: dict = {}
+
+    def hook(i, phase, elapsed_s):
+        if phase == "flame" and elapsed_s >= 0.8 and "t" not in ev:
+            ev["t"], ev["on"] = time.monotonic(), cb.robot_side.board.flame_on
+            os.kill(proc.pid, signal.SIGSTOP)
+        return set()
+
+    ex = Executive(trois, start, SE2(2.0, 0.0, 0.0), d, core, make_planner("c", core), log=log, truth=truth,
+                   now_ns=time.time_ns, hook=hook)
+    try:
+        res = ex.run()
+        board = cb.robot_side.board
+        off_s = board.flame_off_at - ev["t"]
+        final = (board.flame_on, board.armed)
+    finally:
+        d.close()
+        cb.close()
+        log.close()
+        os.kill(proc.pid, signal.SIGCONT)
+        proc.kill()
+        proc.wait()
+    assert ev["on"], "the flame was not on when the body side froze"
+    assert off_s < 0.40, f"flame off {off_s * 1e3:.0f} ms after the body side froze"
+    assert final == (False, False)
+    # the trial ends on the stale state; the target is skipped on it, or the mission aborts on the
+    # link loss that follows (whichever the executive meets first)
+    t = res.targets[0]
+    assert not t.flamed and ((res.aborted and "link" in res.aborted.lower()) or "state_stale" in (t.reason or "")), (res.aborted, t)
+    assert check_ignition_invariant(tmp_path / "run.mcap").ok
+    reasons = [r for m in iter_run(tmp_path / "run.mcap", topics={"/igniter/state"}) for r in m.data.interlock_reasons]
+    assert "body_fault:state_stale" in reasons, sorted(set(reasons))
