@@ -487,6 +487,16 @@ class Executive:
         if err:
             raise MissionAborted(f"run log: cannot write ({err}); {tid} and later targets not begun")
 
+    def _check_igniter(self, tid: str) -> None:
+        """Begin a target only with an igniter that can light: a fault still latched here is one
+        the bounded trials left (a second failure to light, a flame-out on the retry), and the
+        interlock would deny every later hold after a walk and a look. Raises MissionAborted."""
+        fault = self.d.igniter.state().fault
+        if fault and "link_lost" in fault:
+            raise LinkLost(f"igniter link lost ({fault})")
+        if fault:
+            raise MissionAborted(f"igniter: fault latched ({fault}) after the bounded trials; {tid} and later targets not begun")
+
     def _check_fuel(self, tid: str) -> None:
         """Begin a target only with its flame hold's fuel above the reserve: aborting here, before
         the walk, leaves the tank's last fuel unplanned and no weed half-burnt (a run-dry mid-hold
@@ -527,6 +537,7 @@ class Executive:
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
         self._check_log(tid)
+        self._check_igniter(tid)
         self._check_fuel(tid)
         x1 = self._walk_target(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
@@ -607,6 +618,7 @@ class Executive:
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
         self._check_log(tid)
+        self._check_igniter(tid)
         self._check_fuel(tid)
         if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
             x1 = self._walk_target(x1)

@@ -174,3 +174,22 @@ def test_body_side_frozen_mid_hold_puts_the_flame_out_within_the_staleness_bound
     assert check_ignition_invariant(tmp_path / "run.mcap").ok
     reasons = [r for m in iter_run(tmp_path / "run.mcap", topics={"/igniter/state"}) for r in m.data.interlock_reasons]
     assert "body_fault:state_stale" in reasons, sorted(set(reasons))
+
+
+# ---- a latched igniter fault after the bounded trials -------------------------------------------------
+def test_igniter_fault_latched_after_the_bounded_trials_ends_the_mission(core, tmp_path):
+    """docs/faults.md: a second failure to light stays latched, the next ignition attempt faults,
+    abort (exit 1). The interlock's pre-ignition check denied first (`igniter_fault:...`), so every
+    later target was walked to, observed and skipped: a whole field walked with a locked-out
+    burner, exit 0. Now the next target is not begun: the mission stops there."""
+    from capm_field.keystates import TROI
+    from sim_bench.faults import Fault
+    from test_faults import run_mission
+
+    two = [TROI(1.0, 0.3, 0.22, "A"), TROI(2.3, 0.9, 0.25, "B")]
+    result, final, _, _ = run_mission(core, tmp_path, [Fault("ignition_failure", 0, params={"persist": True})], trois=two)
+    a, b = result.targets
+    assert a.reason == "flame_failed:ignition_failed"
+    assert result.aborted and "igniter: fault latched (ignition_failed)" in result.aborted, (result.aborted, b.reason)
+    assert b.reason == "mission_aborted" and b.body_moves == 0 and b.energy == 0.0, b
+    assert not final["flame_on"] and not final["armed"]
