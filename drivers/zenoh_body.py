@@ -90,6 +90,16 @@ class ZenohBodyConfig:
         return ZenohBodyConfig(robot_id=spec.robot_id, link=link, **kw)
 
 
+def _local_timeout(err) -> bool:
+    """zenoh's local error reply to a query held unanswered past its timeout: payload b"Timeout"
+    (encoding zenoh/string or zenoh/bytes, seen both); never a robot side's error, which is a CBOR
+    map (those bytes are a truncated CBOR byte string)."""
+    try:
+        return err.payload.to_bytes() == b"Timeout"
+    except Exception:  # noqa: BLE001 - anything else is the robot's reply, decoded as such
+        return False
+
+
 class ZenohBody(Body):
     def __init__(self, config: ZenohBodyConfig | None = None) -> None:
         import zenoh
@@ -318,6 +328,8 @@ class ZenohBody(Body):
         for reply in replies:  # first reply only: one robot side per key
             if reply.ok is not None:
                 return self._ack(key, kind, reply.ok.payload.to_bytes())
+            if _local_timeout(reply.err):
+                break  # zenoh's own reply to a query nobody answered in time (a frozen robot side)
             try:
                 e = decode("error", reply.err.payload.to_bytes())
             except ProtocolError as pe:

@@ -193,3 +193,36 @@ def test_igniter_fault_latched_after_the_bounded_trials_ends_the_mission(core, t
     assert result.aborted and "igniter: fault latched (ignition_failed)" in result.aborted, (result.aborted, b.reason)
     assert b.reason == "mission_aborted" and b.body_moves == 0 and b.energy == 0.0, b
     assert not final["flame_on"] and not final["armed"]
+
+
+# ---- the body's robot side frozen before a command ---------------------------------------------------
+def test_command_to_a_frozen_body_side_is_a_timeout_not_an_unreadable_reply():
+    """A query the frozen robot side holds ends with zenoh's own local error reply (payload
+    b"Timeout", zenoh/string). ZenohBody decoded it as the robot's CBOR error: `DriverError: robot
+    side sent an unreadable error ... not CBOR`, counted as a bad reply (docs/drivers.md: frozen →
+    LinkLost; a command timing out → DriverTimeout). The mission's abort line blamed the robot side
+    for a malformed message."""
+    import os
+    import signal
+
+    from capm_field.geometry import SE2
+    from drivers.interfaces import DriverTimeout, LinkLost
+    from drivers.zenoh_body import ZenohBody, ZenohBodyConfig
+    from sim_bench.zenoh_body_server import free_port, spawn_server
+
+    port = free_port()
+    proc = spawn_server(port, "bench")
+    try:
+        body = ZenohBody(ZenohBodyConfig.loopback(port, "bench"))
+        try:
+            os.kill(proc.pid, signal.SIGSTOP)
+            with pytest.raises((DriverTimeout, LinkLost)) as ei:
+                body.move_to(SE2(0.5, 0.0, 0.0), 5.0)
+            assert "unreadable" not in str(ei.value), ei.value
+            assert body.stats["bad_reply"] == 0, body.stats
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+            body.close()
+    finally:
+        proc.kill()
+        proc.wait()
