@@ -82,10 +82,15 @@ def test_run_whose_log_fails_stops_and_still_writes_its_summary(tmp_path, maps):
     from mission.runlog_read import ReadReport, iter_run
 
     m = tmp_path / "m.yaml"
-    m.write_text(_TWO.replace("TRANSPORT", "inprocess"))
+    # four targets (~0.7 MB of log): the file stops growing at 200 kB, its first chunks complete,
+    # before the last target begins
+    m.write_text(_TWO.replace("TRANSPORT", "inprocess").replace(
+        "    - {id: B, x: 2.3, y: 0.9, r: 0.25}\n",
+        "    - {id: B, x: 2.3, y: 0.9, r: 0.25}\n    - {id: C, x: 3.4, y: 0.3, r: 0.20}\n    - {id: D, x: 4.1, y: 1.5, r: 0.28}\n"
+    ).replace("end: {x: 3.0, y: 0.5", "end: {x: 5.0, y: 1.5"))
     out = tmp_path / "out"
     r = subprocess.run([sys.executable, "-m", "capm_field.cli", "run", str(m), "--out", str(out), "--quiet"], capture_output=True,
-                       text=True, timeout=120, preexec_fn=_limit_file_size(120_000))
+                       text=True, timeout=120, preexec_fn=_limit_file_size(200_000))
     assert r.returncode == 1, (r.returncode, r.stderr[-3000:])
     assert "Traceback" not in r.stderr, r.stderr[-3000:]
     assert "run log" in r.stderr and "incomplete" in r.stderr, r.stderr
