@@ -124,6 +124,7 @@ def _wire_drivers(robot, task, trois, start, port):
     return DriverSet(body, cb.arm, cb.igniter, cam), cb, proc, truth
 
 
+@pytest.mark.slow  # real time on the wire bench: ~12 s idle, 22 s on the shared 2-core machine
 def test_body_side_frozen_mid_hold_puts_the_flame_out_within_the_staleness_bound(tmp_path, core):
     """SIGSTOP of the body's robot side 0.8 s into the hold: ZenohBody.state() kept returning the
     last State (stationary, no fault) until the stream-stall latch at half the transport lease, so
