@@ -55,6 +55,10 @@ _ACK_FIELDS = {"move": ("cmd_id",), "lease_acquire": ("lease", "ttl_ns"), "check
 _MAX_NS = 2**64 - 1  # a CBOR uint
 SEQ_RESTART_GAP = 1000  # State.seq this far below the last one taken: the robot side restarted (10 s of states)
 SEQ_RESTART_QUIET_NS = 500_000_000  # or no State taken for this long (a restart takes longer)
+# A State older than this is reported as the fault "state_stale" (not latched; link loss comes at
+# `state_stale_s`): the ignition interlock denies on it, as on a CAN arm state as old (CanArm),
+# instead of flaming on the last pose for the half lease a frozen robot side takes to be LinkLost.
+STATE_FRESH_S = 0.25
 REFRESH_RETRY_S = 0.02  # lease refreshes at most this often (a failing refresh must not spin; a TTL under 80 ms is refreshed this often)
 
 
@@ -84,6 +88,16 @@ class ZenohBodyConfig:
         link = LinkConfig(connect=tuple(spec.connect), listen=tuple(spec.listen), lease_ms=int(round(spec.lease_s * 1000)),
                           config_file=cf)
         return ZenohBodyConfig(robot_id=spec.robot_id, link=link, **kw)
+
+
+def _local_timeout(err) -> bool:
+    """zenoh's local error reply to a query held unanswered past its timeout: payload b"Timeout"
+    (encoding zenoh/string or zenoh/bytes, seen both); never a robot side's error, which is a CBOR
+    map (those bytes are a truncated CBOR byte string)."""
+    try:
+        return err.payload.to_bytes() == b"Timeout"
+    except Exception:  # noqa: BLE001 - anything else is the robot's reply, decoded as such
+        return False
 
 
 class ZenohBody(Body):
@@ -218,10 +232,16 @@ class ZenohBody(Body):
         if m is None:
             raise LinkLost(f"no state from {self.keys.prefix}")
         p = m["pose"]
+        if err:
+            fault = f"link_lost: {err}"
+        elif time.monotonic_ns() - rx > STATE_FRESH_S * 1e9:
+            fault = "state_stale"  # where the body is and whether it moves is not known now
+        else:
+            fault = m.get("fault")
         return BodyState(
             pose=SE2(p["x"], p["y"], p["yaw"]), moving=m["moving"], powered=m["powered"], estop=m["estop"],
             stamp_ns=rx,  # local monotonic receive time: the robot's clock is another machine's
-            odometry_m=m["odometry_m"], fault=f"link_lost: {err}" if err else m.get("fault"),
+            odometry_m=m["odometry_m"], fault=fault,
         )
 
     # ---- extras (not in the Body interface) --------------------------------------------------
@@ -308,6 +328,8 @@ class ZenohBody(Body):
         for reply in replies:  # first reply only: one robot side per key
             if reply.ok is not None:
                 return self._ack(key, kind, reply.ok.payload.to_bytes())
+            if _local_timeout(reply.err):
+                break  # zenoh's own reply to a query nobody answered in time (a frozen robot side)
             try:
                 e = decode("error", reply.err.payload.to_bytes())
             except ProtocolError as pe:

@@ -480,6 +480,23 @@ class Executive:
         """Tank fraction one ξ hold is expected to burn (0 while no rate is known)."""
         return hold_fuel(self.task.xi, max(self.fuel_per_s or 0.0, self._fuel_rate_seen))
 
+    def _check_log(self, tid: str) -> None:
+        """Begin a target only while its record can be kept: a run log that stopped taking writes
+        (disk full) would leave the burns that follow unrecorded. Raises MissionAborted."""
+        err = getattr(self.log, "write_error", None) if self.log else None
+        if err:
+            raise MissionAborted(f"run log: cannot write ({err}); {tid} and later targets not begun")
+
+    def _check_igniter(self, tid: str) -> None:
+        """Begin a target only with an igniter that can light: a fault still latched here is one
+        the bounded trials left (a second failure to light, a flame-out on the retry), and the
+        interlock would deny every later hold after a walk and a look. Raises MissionAborted."""
+        fault = self.d.igniter.state().fault
+        if fault and "link_lost" in fault:
+            raise LinkLost(f"igniter link lost ({fault})")
+        if fault:
+            raise MissionAborted(f"igniter: fault latched ({fault}) after the bounded trials; {tid} and later targets not begun")
+
     def _check_fuel(self, tid: str) -> None:
         """Begin a target only with its flame hold's fuel above the reserve: aborting here, before
         the walk, leaves the tank's last fuel unplanned and no weed half-burnt (a run-dry mid-hold
@@ -490,16 +507,6 @@ class Executive:
             what = f", a hold needs ~{need:.1%}" if need > 0 else ""
             raise MissionAborted(f"igniter: fuel low ({fuel:.1%} left{what}, reserve {self.fuel_reserve:.1%}); "
                                  f"{tid} and later targets not begun")
-
-    def _check_igniter(self, tid: str) -> None:
-        """Begin a target only with no igniter fault latched: nothing in a mission clears one
-        (a failed ignition or flame-out gets its one reset in `_flame`, a second failure stays
-        latched: burner practice), so every later target would be walked to, observed and
-        skipped at the interlock. Raises MissionAborted before the walk (a lost link is left to
-        the link checks)."""
-        fault = self.d.igniter.state().fault
-        if fault and "link_lost" not in fault:
-            raise MissionAborted(f"igniter: {fault} latched (cleared only by a reset); {tid} and later targets not begun")
 
     def _note_fuel_burnt(self, fuel_before: float, flame_s: float) -> None:
         """Learn the tank's consumption from a hold (the highest rate seen is kept)."""
@@ -529,8 +536,9 @@ class Executive:
 
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
-        self._check_fuel(tid)
+        self._check_log(tid)
         self._check_igniter(tid)
+        self._check_fuel(tid)
         x1 = self._walk_target(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
         if self.planner.name == "a":
@@ -609,8 +617,9 @@ class Executive:
         x1 = plan.x_b_k1
         self._set_phase(i, n, tid, "walk to x_b,k1")
         self._hook("walk")
-        self._check_fuel(tid)
+        self._check_log(tid)
         self._check_igniter(tid)
+        self._check_fuel(tid)
         if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
             x1 = self._walk_target(x1)
         else:

@@ -260,6 +260,8 @@ def _run(a: argparse.Namespace) -> int:
             log.close()
     summary = result.to_json()
     summary["log_s"] = log.call_time_s  # time spent in RunLog calls (logging cost)
+    if log.write_error:  # the run log stopped taking writes (disk full …): it ends there
+        summary["log_error"] = log.write_error
     summary.update({"name": mission.name, "mission": str(a.mission), "planner": mission.planner,
                     "seed": a.seed if a.seed is not None else getattr(mission.drivers, "seed", None), "images": mission.output.images})
     tmp = out / "summary.json.tmp"
@@ -277,13 +279,15 @@ def _run(a: argparse.Namespace) -> int:
             f"{flamed}/{len(result.targets)} flamed, success rate {result.success_rate:.2f}, energy {result.total_energy:.2f}, "
             f"wall {result.wall_s:.1f} s (logging {log.call_time_s:.2f} s, {100 * log.call_time_s / max(result.wall_s, 1e-9):.1f} %) → {out}/run.mcap, {out}/summary.json"
         )
+    if log.write_error:
+        print(f"capm-field run: run log {out / 'run.mcap'} incomplete (readable up to the failure): {log.write_error}", file=sys.stderr)
     if result.interrupted:
         print(f"capm-field run: interrupted ({result.interrupted}): flame off, body stopped; {out / 'summary.json'} marked interrupted", file=sys.stderr)
         return 128 + signal.Signals[result.interrupted]
     if result.aborted:
         print(f"capm-field run: mission aborted: {result.aborted}", file=sys.stderr)
         return 1
-    return 0
+    return 1 if log.write_error else 0
 
 
 def _open_log(out: Path, made: bool, drivers, robot, mission: Mission, a: argparse.Namespace, *, bench: bool):

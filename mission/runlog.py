@@ -104,6 +104,31 @@ _LEVELS = {
 }
 _ROS2_STRING = Schema(name="std_msgs/msg/String", encoding="ros2msg", data=b"string data")
 
+# The RunLog whose write is running on this thread (set in RunLog._emit with its lock held).
+# foxglove-sdk reports a failed sink write (a full disk, a file size limit) as a Python log
+# warning from inside that write: a handler that logs into the run log must not re-enter it
+# (RunLog's lock is not re-entrant: the run hung for good on it).
+_WRITING = threading.local()
+SINK_LOGGER = "foxglove.log_sink_set"  # the logger foxglove-sdk reports sink write failures on
+
+
+class _SinkErrors(logging.Filter):
+    """On foxglove's sink logger: the first write failure of a RunLog is kept as its
+    `write_error` and shown once; the same RunLog's later ones (every message after a failure
+    fails: "attempted another write after a write method failed") are dropped."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        log = getattr(_WRITING, "log", None)
+        if log is None:
+            return True
+        if log.write_error is not None:
+            return False
+        log.write_error = record.getMessage()
+        return True
+
+
+_sink_filter = _SinkErrors()
+
 
 def urdf_tree(urdf_text: str) -> dict[str, str]:
     """child link -> parent link, from the URDF's joints."""
@@ -187,6 +212,10 @@ class RunLog:
         self._static_written = False
         self.n_flushes = 0
         self.call_time_s = 0.0  # wall time spent inside RunLog calls (the logging cost)
+        self.write_error: str | None = None  # the first failed write (disk full …): the file ends there
+        sink_log = logging.getLogger(SINK_LOGGER)
+        if _sink_filter not in sink_log.filters:
+            sink_log.addFilter(_sink_filter)
 
         if (self.path.exists() or self.path.is_symlink()) and not overwrite:
             raise UserError(f"run log already exists: {self.path} (choose another --out directory)")
@@ -273,18 +302,34 @@ class RunLog:
         with self._lock:
             if self._closed or not self._dirty:
                 return
-            self._writer.flush()
             self._dirty = False
+            if self.write_error is not None:
+                return
+            try:
+                self._writer.flush()
+            except RuntimeError as e:  # FoxgloveError (disk full …): kept for the run to report
+                self._failed(e)
+                return
             self.n_flushes += 1
+
+    def _failed(self, e: BaseException) -> None:
+        if self.write_error is None:
+            self.write_error = " ".join(str(e).split())[:300]
 
     def _emit(self, t_ns: int, fn) -> None:
         t0 = time.perf_counter()
         with self._lock:
             if self._closed:
                 return
-            if not self._static_written:
-                self._write_static(t_ns)
-            fn()
+            if self.write_error is not None:
+                return  # the file ends at the failure: every later write fails too
+            _WRITING.log = self
+            try:
+                if not self._static_written:
+                    self._write_static(t_ns)
+                fn()
+            finally:
+                _WRITING.log = None
             self._dirty = True
         self.call_time_s += time.perf_counter() - t0
 
@@ -323,7 +368,8 @@ class RunLog:
         self._emit(t_ns, lambda: self._proto[key].log(data, log_time=int(t_ns)))
 
     def close(self) -> None:
-        """Finalise the file (summary, footer). Idempotent; also runs at interpreter exit."""
+        """Finalise the file (summary, footer). Idempotent; also runs at interpreter exit. Never
+        raises for a failed write: see `write_error` (the file is then readable up to the failure)."""
         with self._lock:
             if self._closed:
                 return
@@ -331,7 +377,10 @@ class RunLog:
         self._stop.set()
         if self._flusher is not threading.current_thread():
             self._flusher.join(timeout=5.0)
-        self._writer.close()
+        try:
+            self._writer.close()
+        except RuntimeError as e:  # a write failed (disk full …): the file holds what came before
+            self._failed(e)
         atexit.unregister(self.close)
 
     @property
@@ -543,6 +592,8 @@ class RunLogHandler(logging.Handler):
         self._now_ns = now_ns
 
     def emit(self, record: logging.LogRecord) -> None:
+        if getattr(_WRITING, "log", None) is not None:
+            return  # raised by a run log write on this thread (its own failure): cannot go into it
         try:
             text = record.getMessage()
             if record.exc_info:

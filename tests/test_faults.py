@@ -168,7 +168,7 @@ def test_a_fault_still_latched_after_the_bounded_retry_stops_the_mission(core, t
     result, final, _, log = run_mission(core, tmp_path, [Fault("ignition_failure", 0, params={"persist": True})], trois=THREE)
     a, b, c = result.targets
     assert not a.flamed and a.reason == "flame_failed:ignition_failed"
-    assert result.aborted and "igniter: ignition_failed latched" in result.aborted, result.aborted
+    assert result.aborted and "igniter: fault latched (ignition_failed)" in result.aborted, result.aborted
     assert [b.reason, c.reason] == ["mission_aborted"] * 2
     assert b.energy == 0.0 and b.body_moves == 0  # stopped before its walk
     assert not final["flame_on"] and not final["armed"]
