@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-from . import axis_votes, compound_leaf, fan_apex, leaf_axes, plant_centre, stalks, star_centre, straw_shape, tree_median
+from . import axis_votes, compound_leaf, fan_apex, hub_petioles, leaf_axes, plant_centre, stalks, star_centre, straw_shape, tree_median
 from .components import components
 from .roi import Roi, roi_mask
 from .vegetation import cap_clipped, pooled_index, resize_down, vegetation_index
@@ -34,6 +34,7 @@ FINE_STALK_PX = 200  # (0: off) plant windows of ≥ this many image px whose st
 # 300 frames where it runs. From 100 px windows: bench seed 3 a clover 8.3 → 27.9 mm; for every plant, not
 # only compound-leaved ones: a field-photo fat-hen's leaf veins and a stone's edge taken for stalks (0.02 →
 # 0.57 S)
+HUB_PETIOLES = True  # `hub_petioles.hub_petiole_centre` for compound leaves no estimator above answered
 STAR_CHECK = True  # `star_centre.star_check` on every answer (session 59)
 STALK_PEAKS = 2  # leaf-axis vote peaks (`axis_votes.vote_peaks`) from which stalks are looked for
 
@@ -234,6 +235,13 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
                 uv = None
             if uv is not None:
                 method = "petiole_split"
+    if uv is None and HUB_PETIOLES and compound_leaf.has_compound_leaves(plant_hubs()):
+        # trefoils whose rays back did not meet all round a centre (leaves to one side of it, or
+        # only two or three of them): each ray confirmed by the petiole it runs along
+        parts = parts or plant_centre.broad_parts(plant)
+        uv = hub_petioles.hub_petiole_centre(img, X0, Y0, kx, ky, plant, parts[1], plant_hubs(), debug)
+        if uv is not None:
+            method = "hub_petioles"
     if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:
         # separate parts round an empty centre (stalks too thin to see): the median of their
         # centroids — after `compound_centre`, which answers exactly for trefoils whose
