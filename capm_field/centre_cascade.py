@@ -15,8 +15,9 @@ import numpy as np
 
 from . import axis_votes, compound_leaf, fan_apex, hub_petioles, leaf_axes, plant_centre, stalks, star_centre, straw_shape, tree_median
 from .components import components
+from .plant_window import plant_window
 from .roi import Roi, roi_mask
-from .vegetation import cap_clipped, pooled_index, resize_down, vegetation_index
+from .vegetation import cap_clipped, pooled_index, vegetation_index
 from .vegetation_mask import group_components, hysteresis
 
 PLANT_PX = 80  # stage 2 (find its centre): plant bounding box resampled to about this size
@@ -51,37 +52,18 @@ def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant:
     clipped pixels are capped at the soil level (`vegetation.cap_clipped`)."""
     if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
         return None, None
-    nh, nw = plant.shape
-    H, W = img.shape[:2]
-    span = max(nw * kx, nh * ky)  # the stage-2 window in image pixels
-    p = max(1.0, span / max_px)  # pitch of the stalk grid, image pixels
-    m = stalks.MARGIN * span
-    xa, ya = max(int(math.floor(X0 - m)), 0), max(int(math.floor(Y0 - m)), 0)
-    xb, yb = min(int(math.ceil(X0 + nw * kx + m)), W), min(int(math.ceil(Y0 + nh * ky + m)), H)
-    if xb - xa < 16 or yb - ya < 16:
+    win = plant_window(img, X0, Y0, kx, ky, plant.shape, max_px, stalks.MARGIN)
+    if win is None:
         return None, None
-    NW, NH = max(int((xb - xa) / p), 8), max(int((yb - ya) / p), 8)
-    region = resize_down(img[ya:yb, xa:xb], (NW, NH)) if p > 1.0 else img[ya:yb, xa:xb]
-    p_x, p_y = (xb - xa) / region.shape[1], (yb - ya) / region.shape[0]  # the grid's pitch, image px
+    region = win.region
     grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
     vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
     if cap:
         cap_clipped(region, vi, soil)
-    # the plant's mask onto this grid: stalk-grid pixel x ↔ image xa + (x + 0.5)·p_x − 0.5 ↔
-    # stage-2 grid (xa + (x + 0.5)·p_x − 0.5 − X0 + 0.5) / kx − 0.5 (and the same for y)
-    M = np.array([[p_x / kx, 0, (xa - X0 + 0.5 * p_x) / kx - 0.5], [0, p_y / ky, (ya - Y0 + 0.5 * p_y) / ky - 0.5]], np.float32)
-    NH, NW = region.shape[:2]
-    big = cv2.warpAffine(plant.astype(np.uint8), M, (NW, NH), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-                         borderMode=cv2.BORDER_CONSTANT) > 0
+    big = win.mask(plant)
     leaves = hysteresis(vi, thr, soil, np.ones(vi.shape, bool)) | big
-    def to_stage2(X: np.ndarray | None) -> np.ndarray | None:
-        if X is None:
-            return None
-        x, y = xa + (X[0] + 0.5) * p_x - 0.5, ya + (X[1] + 0.5) * p_y - 0.5  # image pixels
-        return np.array([(x - X0 + 0.5) / kx - 0.5, (y - Y0 + 0.5) / ky - 0.5])
-
     meet, lone = stalks.stalk_points(grey, vi, leaves, big)
-    return to_stage2(meet), to_stage2(lone)
+    return (None if meet is None else win.to_stage2(meet)), (None if lone is None else win.to_stage2(lone))
 
 
 def separate_parts(plant: np.ndarray) -> int:
@@ -239,7 +221,7 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         # trefoils whose rays back did not meet all round a centre (leaves to one side of it, or
         # only two or three of them): each ray confirmed by the petiole it runs along
         parts = parts or plant_centre.broad_parts(plant)
-        uv = hub_petioles.hub_petiole_centre(img, X0, Y0, kx, ky, plant, parts[1], plant_hubs(), debug)
+        uv = hub_petioles.hub_petiole_centre(img, X0, Y0, kx, ky, plant, parts[1], plant_hubs())
         if uv is not None:
             method = "hub_petioles"
     if uv is None and roundness >= plant_centre.HUB_MIN_ROUND:

@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 
 from .order_stats import percentile
-from .vegetation import resize_down
+from .plant_window import plant_window
 
-MAX_PX = 240  # longest side of the working grid (petioles 1–3 px wide there)
+MAX_PX = 120  # the plant window at most this many px across on the working grid (petioles 1–3 px wide there)
 MARGIN = 0.5  # × the plant window: how far round it the centre may lie
 SIGMA = 1.0  # px of the working grid: the line filter's scale
 FAN = 0.35  # rad each side of a hub's three candidate directions (middle leaflet ±0.2 rad, phase error)
@@ -74,47 +74,30 @@ def _evidence(s_fnn: np.ndarray, s_fn: np.ndarray, ok: np.ndarray, axis: int = -
     return np.abs(a) / nn - EDGE_K * b / nn, n
 
 
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Angles wrapped onto [−π, π)."""
+    return np.mod(a + np.pi, 2 * np.pi) - np.pi
+
+
 def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray,
-                       broad: np.ndarray, hubs: tuple, debug: dict | None = None) -> np.ndarray | None:
+                       broad: np.ndarray, hubs: tuple) -> np.ndarray | None:
     """Where the confirmed petioles of ≥ MIN_HUBS trefoil hubs meet, in stage-2 grid pixels
     (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)), or None.
     `plant`: the stage-2 mask, `broad`: its broad parts (`plant_centre.broad_parts`), `hubs`:
     `compound_leaf.compound_hubs` of the plant."""
-    P, wts, th0 = hubs
-    if len(P) < MIN_HUBS:
-        return None
-    nh, nw = plant.shape
-    H, W = img.shape[:2]
+    P, _, th0 = hubs
     ys_, xs_ = np.nonzero(plant)
-    if len(xs_) < 30:
+    if len(P) < MIN_HUBS or len(xs_) < 30:
         return None
-    span = max(nw * kx, nh * ky)
-    m = MARGIN * span
-    xa, ya = max(int(math.floor(X0 - m)), 0), max(int(math.floor(Y0 - m)), 0)
-    xb, yb = min(int(math.ceil(X0 + nw * kx + m)), W), min(int(math.ceil(Y0 + nh * ky + m)), H)
-    if xb - xa < 16 or yb - ya < 16:
+    win = plant_window(img, X0, Y0, kx, ky, plant.shape, MAX_PX, MARGIN)
+    if win is None:
         return None
-    pitch = max(1.0, max(xb - xa, yb - ya) / MAX_PX)
-    NW, NH = max(int((xb - xa) / pitch), 8), max(int((yb - ya) / pitch), 8)
-    region = resize_down(img[ya:yb, xa:xb], (NW, NH)) if pitch > 1.0 else img[ya:yb, xa:xb]
-    NH, NW = region.shape[:2]
-    p_x, p_y = (xb - xa) / NW, (yb - ya) / NH
-    grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
-    D = _second_derivatives(grey)
-    # stage-2 grid ↔ working grid (both pixel-centre conventions)
-    M = np.array([[p_x / kx, 0, (xa - X0 + 0.5 * p_x) / kx - 0.5], [0, p_y / ky, (ya - Y0 + 0.5 * p_y) / ky - 0.5]], np.float32)
-    warp = lambda mask: cv2.warpAffine(mask.astype(np.uint8), M, (NW, NH), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-                                       borderMode=cv2.BORDER_CONSTANT) > 0
-    leaves = warp(broad)
-    whole = warp(plant)
-    free = (~leaves).astype(np.uint8)
-
-    def to_work(q: np.ndarray) -> np.ndarray:  # stage-2 grid → working grid
-        x, y = X0 + (q[..., 0] + 0.5) * kx - 0.5, Y0 + (q[..., 1] + 0.5) * ky - 0.5
-        return np.stack([(x - xa + 0.5) / p_x - 0.5, (y - ya + 0.5) / p_y - 0.5], -1)
-
-    size = math.hypot((np.ptp(xs_) + 1) * kx / p_x, (np.ptp(ys_) + 1) * ky / p_y)  # plant size, working px
-    Pw = to_work(np.asarray(P, float))
+    NH, NW = win.region.shape[:2]
+    D = _second_derivatives(cv2.cvtColor(win.region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0)
+    whole = win.mask(plant)
+    free = (~win.mask(broad)).astype(np.uint8)
+    size = math.hypot((np.ptp(xs_) + 1) * kx / win.p_x, (np.ptp(ys_) + 1) * ky / win.p_y)  # plant size, working px
+    Pw = win.from_stage2(np.asarray(P, float))
     # the soil's evidence on segments of a petiole's typical length, anywhere off the plant
     soil_pts = np.argwhere(~cv2.dilate(whole.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool))
     if len(soil_pts) < 50:
@@ -126,7 +109,7 @@ def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, 
     t = np.arange(L, dtype=np.float32)
     rx = pick[:, 1, None] + t[None] * np.cos(a)[:, None]
     ry = pick[:, 0, None] + t[None] * np.sin(a)[:, None]
-    s1, s2, ok = _sample(D, np.ones_like(free), rx, ry, np.broadcast_to(a[:, None], rx.shape))
+    s1, _, ok = _sample(D, np.ones_like(free), rx, ry, np.broadcast_to(a[:, None], rx.shape))
     n_ref = ok.sum(axis=1)
     valid = n_ref >= L // 2
     if int(valid.sum()) < 30:
@@ -136,8 +119,8 @@ def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, 
     ref = max(float(percentile(line_ref[valid], REF_Q)), 1e-6)
     # each hub's fans of rays round its three candidate directions back to the centre
     fan = np.arange(-FAN, FAN + 1e-9, FAN_STEP)
-    dirs = (th0[:, None] + np.pi + np.arange(3)[None, :] * (2 * np.pi / 3))[:, :, None] + fan[None, None, :]  # (n, 3, f)
-    dirs = dirs.reshape(len(P), -1)  # (n, 3f)
+    mids = th0[:, None] + np.pi + np.arange(3)[None, :] * (2 * np.pi / 3)  # (n, 3)
+    dirs = (mids[:, :, None] + fan[None, None, :]).reshape(len(P), -1)  # (n, 3f)
     T = max(int(RAY_MAX * size), 4)
     tt = np.arange(1, T + 1, dtype=np.float32)
     rx = Pw[:, 0, None, None] + tt[None, None] * np.cos(dirs)[:, :, None]
@@ -153,16 +136,17 @@ def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, 
     score = np.zeros(gx.shape, np.float32)
     count = np.zeros(gx.shape, np.int32)
     backs = []  # per hub: where it backs a point, and the direction it comes from
+    nf = len(fan)
     for i in range(n_h):
         dx, dy = gx - Pw[i, 0], gy - Pw[i, 1]
         r = np.hypot(dx, dy)
         ang = np.arctan2(dy, dx)
-        # the nearest ray of the hub's fans (angles wrapped onto them), and its step along
-        d = np.angle(np.exp(1j * (ang[..., None] - dirs[i][None, None, :])))  # (h, w, n_r)
-        k = np.argmin(np.abs(d), axis=-1)
-        near = np.take_along_axis(np.abs(d), k[..., None], -1)[..., 0] <= FAN_STEP
         ti = np.clip(np.rint(r).astype(np.int32) - 1, 0, T - 1)
-        z = np.where(near & (r >= 1) & (r <= T), Z[i][k, ti], 0.0)
+        z = np.zeros(gx.shape)
+        for j in range(3):  # the nearest ray of the fan round each candidate direction (within a step of its rim)
+            rel = _wrap(ang - mids[i, j])
+            k = j * nf + np.clip(np.rint((rel + FAN) / FAN_STEP).astype(np.int32), 0, nf - 1)
+            z = np.where((np.abs(rel) <= FAN + FAN_STEP) & (r >= 1) & (r <= T), Z[i][k, ti], z)
         good = z >= Z_MIN
         score += np.where(good, z, 0.0).astype(np.float32)
         count += good
@@ -172,18 +156,9 @@ def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, 
     wide = np.zeros(gx.shape, bool)
     for i in range(n_h):
         for j in range(i + 1, n_h):
-            d = np.abs(np.angle(np.exp(1j * (backs[i][1] - backs[j][1]))))
-            wide |= backs[i][0] & backs[j][0] & (d >= MEET_ANGLE)
+            wide |= backs[i][0] & backs[j][0] & (np.abs(_wrap(backs[i][1] - backs[j][1])) >= MEET_ANGLE)
     score = np.where((count >= MIN_HUBS) & wide, score, 0.0)
-    iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
-    q = np.array([gx[iy, ix], gy[iy, ix]], float)
-    if debug is not None and debug.get("hub_petioles_viz") is not None:  # (bench/ analysis only)
-        debug["hub_petioles_viz"].update(region=region, hubs=Pw, dirs=dirs, Z=Z, q=q, score=score)
     if float(score.max()) <= 0:
         return None
-    if debug is not None:
-        debug["hub_petioles"] = dict(hubs=int(count[iy, ix]), score=float(score[iy, ix]), ref=ref,
-                                     second=float(np.sort(score.ravel())[-2]) if score.size > 1 else 0.0)
-    # back to the stage-2 grid
-    x, y = xa + (q[0] + 0.5) * p_x - 0.5, ya + (q[1] + 0.5) * p_y - 0.5
-    return np.array([(x - X0 + 0.5) / kx - 0.5, (y - Y0 + 0.5) / ky - 0.5])
+    iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+    return win.to_stage2(np.array([gx[iy, ix], gy[iy, ix]], float))
