@@ -21,6 +21,7 @@ import math
 import cv2
 import numpy as np
 
+from .geometry import wrap_angle
 from .order_stats import percentile
 from .plant_window import plant_window
 
@@ -72,11 +73,6 @@ def _evidence(s_fnn: np.ndarray, s_fn: np.ndarray, ok: np.ndarray, axis: int = -
     b = np.cumsum(s_fn, axis=axis)
     nn = np.maximum(n, 1)
     return np.abs(a) / nn - EDGE_K * b / nn, n
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """Angles wrapped onto [−π, π)."""
-    return np.mod(a + np.pi, 2 * np.pi) - np.pi
 
 
 def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray,
@@ -144,7 +140,7 @@ def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, 
         ti = np.clip(np.rint(r).astype(np.int32) - 1, 0, T - 1)
         z = np.zeros(gx.shape)
         for j in range(3):  # the nearest ray of the fan round each candidate direction (within a step of its rim)
-            rel = _wrap(ang - mids[i, j])
+            rel = wrap_angle(ang - mids[i, j])
             k = j * nf + np.clip(np.rint((rel + FAN) / FAN_STEP).astype(np.int32), 0, nf - 1)
             z = np.where((np.abs(rel) <= FAN + FAN_STEP) & (r >= 1) & (r <= T), Z[i][k, ti], z)
         good = z >= Z_MIN
@@ -156,7 +152,7 @@ def hub_petiole_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, 
     wide = np.zeros(gx.shape, bool)
     for i in range(n_h):
         for j in range(i + 1, n_h):
-            wide |= backs[i][0] & backs[j][0] & (np.abs(_wrap(backs[i][1] - backs[j][1])) >= MEET_ANGLE)
+            wide |= backs[i][0] & backs[j][0] & (np.abs(wrap_angle(backs[i][1] - backs[j][1])) >= MEET_ANGLE)
     score = np.where((count >= MIN_HUBS) & wide, score, 0.0)
     if float(score.max()) <= 0:
         return None
