@@ -6,8 +6,8 @@ Stage-2 estimator of the weed-centre detector (see `capm_field.plant_centre` for
 It works on the grey image, not on colour: a stalk is a straight line darker or lighter than
 the soil on both sides. Line strength is measured per pixel (Hessian across the line, minus
 what a step edge explains), and its direction tensor is averaged over a stalk-length
-neighbourhood: along a straight stalk the directions agree, in the soil's texture they do
-not. Straight pieces that leave a leaf and point away from it are stalks, and the plant's
+neighbourhood (`capm_field.line_strength`): along a straight stalk the directions agree, in the
+soil's texture they do not. Straight pieces that leave a leaf and point away from it are stalks, and the plant's
 centre is where ≥ 2 of them point to (`plant_centre.meeting_point`); a lone stalk between two
 leaf clusters gives its end on the side of the rest of the plant (`_bridge_end`). Measured with
 `bench/perception_failures.py` on bench seeds 0–3. Coordinates are (x, y) pixels of the grid the caller passes.
@@ -21,13 +21,11 @@ import cv2
 import numpy as np
 
 from .components import components
+from .line_strength import N_DIRS, line_strength
 from .order_stats import percentile
 from .plant_centre import HUB_OPEN, HULL_TOL, meeting_point, supporting
 
-SIGMA = 1.0  # px: Gaussian scale of the line filter (stalks 1–3 px wide on the stalk grid)
 SEG_LEN = 0.12  # × plant size: the neighbourhood (3 σ) over which line directions must agree
-N_DIRS = 16  # direction bins that keep crossing stalks apart
-EDGE_K = 2.0  # line strength minus this × gradient magnitude (a step edge's flanks are not lines)
 PX_K = 0.15  # a stalk pixel: its own line strength ≥ this × the 99th percentile on the soil ...
 LINE_K = 1.0  # ... and its neighbourhood's agreeing strength ≥ this × that percentile
 CLUSTER = 0.05  # × the plant's area: smallest leaf cluster (≥ 2 needed)
@@ -44,40 +42,6 @@ TAIL_K = 3.0  # `_soil_ref`: the soil's 99th percentile of agreeing strength at 
 # 0–1, photo-like seed 3): the same but the other renderer's clovers with a ROI, median 0.033 → 0.024 S
 TAIL_FLOOR = 10.0  # ... and at least 1/this × its 99th
 MAX_PX = 100  # longest side of the plant window on the stalk grid (the image is shrunk beyond)
-
-
-def line_strength(grey: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Straight thin lines in a float grey image: (agreeing strength, direction bin, own strength).
-
-    Own strength, per pixel: the Hessian's |eigenvalue| across a line (either polarity) where
-    the one along it is small, less EDGE_K × the gradient magnitude. Agreeing strength: the
-    coherent part (λ1 − λ2) of the line-direction tensor weighted by it, averaged with a
-    Gaussian of σ = length / 3; its direction, in N_DIRS bins over [0, π)."""
-    f = cv2.GaussianBlur(grey, (0, 0), SIGMA)
-    fxx = cv2.Sobel(f, cv2.CV_32F, 2, 0, ksize=3)
-    fyy = cv2.Sobel(f, cv2.CV_32F, 0, 2, ksize=3)
-    fxy = cv2.Sobel(f, cv2.CV_32F, 1, 1, ksize=3)
-    grad = np.hypot(cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)) / 8
-    disc = np.sqrt((fxx - fyy) ** 2 + 4 * fxy**2)
-    l1 = 0.5 * (fxx + fyy - disc)  # most negative: across a light line
-    l2 = 0.5 * (fxx + fyy + disc)  # most positive: across a dark line
-    light = np.where((l1 < 0) & (np.abs(l2) < 0.5 * np.abs(l1)), -l1, 0.0)
-    dark = np.where((l2 > 0) & (np.abs(l1) < 0.5 * np.abs(l2)), l2, 0.0)
-    st = np.maximum(np.maximum(light, dark) / 4 - EDGE_K * grad, 0.0).astype(np.float32)
-    # the direction along the line: perpendicular to the eigenvector of the eigenvalue used
-    phi = 0.5 * np.arctan2(2 * fxy, fxx - fyy)  # eigenvector of l2 (across a dark line)
-    along = np.where(light > dark, phi, phi + np.pi / 2)
-    # line-direction tensor of the strengths, averaged over ~`length` px: a straight line keeps
-    # one direction (its coherent part, λ1 − λ2, stays), soil texture's lines point every way
-    c, s_ = np.cos(along), np.sin(along)
-    sig = max(length / 3.0, 1.5)
-    txx = cv2.GaussianBlur((st * c * c).astype(np.float32), (0, 0), sig)
-    txy = cv2.GaussianBlur((st * c * s_).astype(np.float32), (0, 0), sig)
-    tyy = cv2.GaussianBlur((st * s_ * s_).astype(np.float32), (0, 0), sig)
-    best = np.sqrt((txx - tyy) ** 2 + 4 * txy**2)
-    th = 0.5 * np.arctan2(2 * txy, txx - tyy)  # the dominant line direction
-    idx = (np.round(np.mod(th, np.pi) / (np.pi / N_DIRS)).astype(np.int32) % N_DIRS).astype(np.uint8)
-    return best, idx, st
 
 
 def _soil_ref(strength: np.ndarray) -> float:
