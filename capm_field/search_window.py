@@ -2,7 +2,7 @@
 
 The ROI's bounding box grown by ROI_MARGIN, downscaled once to the index image (≤ MID_PX_STAGE1
 px) and to the stage-1 grid (≤ WORK_PX on its longest side); the frame's sanity checks (dtype,
-shape, exposure, flatness, pixel noise: "bad_image"), the index image median-filtered when its
+shape, exposure, flatness, no colour, pixel noise: "bad_image"), the index image median-filtered when its
 colour noise is high (`DENOISE_FROM`), the ROI mask on the grid and the soil white balance. Both
 looks of `capm_field.detector` and its shadowed-part looks share it.
 """
@@ -105,7 +105,10 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
     sat = float(np.count_nonzero(cv2.min(cv2.min(b_, g_), r_) >= CLIP_LEVEL)) / gray.size  # clipped to white
     # (flat: also no pixel off by FLAT_RANGE, which a plant of a few grid pixels is, however small)
     flat = std < 1.5 and int(np.ptp(small.reshape(-1, 3), axis=0).max()) < FLAT_RANGE
-    if mean < 12 or sat > 0.6 or flat or mean > 245:
+    # no colour anywhere (a monochrome camera or stream, a grey-level file): greenness cannot be
+    # judged, and "no_plant" would tell the operator there is no weed rather than no colour
+    mono = max(cv2.norm(b_, g_, cv2.NORM_INF), cv2.norm(g_, r_, cv2.NORM_INF)) <= MONO_CHROMA
+    if mean < 12 or sat > 0.6 or flat or mono or mean > 245:
         return bad
     noise = chroma_noise(crop)
     if max(_pixel_noise(crop), noise) >= NOISE_SIGMA and _coherence(mid) < NOISE_COHERENCE:  # (cheaper tests first)
@@ -141,6 +144,10 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
                         soil=soil, noise=noise, clipped=clipped)
 
 
+MONO_CHROMA = 1  # grey levels: largest |B − G| and |G − R| on the stage-1 grid of a frame without colour (grey
+# frames and grey JPEGs decoded to BGR: 0). Measured (session 69): bench seeds 0, 5, 9 ≥ 7 (3 of 900 frames ≤ 12,
+# median 83); field photos ≥ 38, in the photographer's shadow, bare ≥ 22; other renderer ≥ 21; photo-like ≥ 27;
+# stones on soils ≥ 27
 FLAT_RANGE = 16  # grey levels: a blank frame under sensor noise σ ≤ 5 stays within it on the stage-1 grid
 NOISE_COHERENCE = 0.65  # measured: bench, photo-like and other-renderer frames ≥ 0.87; RGB noise ≤ 0.56
 NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise` of the grey level, or the colour noise,

@@ -786,6 +786,23 @@ def test_other_noise_frames_are_bad_images(kind: str) -> None:
     assert detect_centre(img).reason == "bad_image"
 
 
+@pytest.mark.parametrize("fixture", ["rosette_vga.jpg", "seedling.jpg", "grass_tuft.jpg"])
+def test_a_frame_without_colour_is_a_bad_image_not_bare_soil(fixture: str) -> None:
+    """A plant photographed by a monochrome camera (or a grey-level file, or a grey JPEG decoded to
+    BGR) cannot be judged by its colour: "bad_image", not "no_plant" (which would say there is no
+    weed). The same photo in colour is read."""
+    img = cv2.imread(str(FIX / fixture))
+    assert detect_centre(img).reason is None
+    grey = cv2.cvtColor(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR)
+    assert detect_centre(grey).reason == "bad_image"
+    jpeg = cv2.imdecode(cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, 80])[1], cv2.IMREAD_COLOR)
+    assert detect_centre(jpeg).reason == "bad_image"
+    # a faint tint is colour: a dull soil photo with a green plant a few levels off grey is read
+    tinted = grey.astype(np.int16)
+    tinted[..., 1] += 6
+    assert detect_centre(np.clip(tinted, 0, 255).astype(np.uint8)).reason != "bad_image"
+
+
 @pytest.mark.parametrize("soil", [(110, 110, 110), (40, 70, 110)])
 @pytest.mark.parametrize("noise", [0, 5, 20])
 @pytest.mark.parametrize("leaf_len", [10, 40])
@@ -887,8 +904,9 @@ def test_expected_bad_input_is_not_logged_as_a_failure(caplog) -> None:
     def broken(*a, **k):
         raise RuntimeError("bug")
 
-    img = np.zeros((480, 640, 3), np.uint8)  # a scene-like image (a gradient: not flat, not noise)
+    img = np.zeros((480, 640, 3), np.uint8)  # a scene-like image (a gradient: not flat, not noise, not grey)
     img[:] = np.linspace(60, 160, 640, dtype=np.uint8)[None, :, None]
+    img[..., 2] += 20  # a brownish tint: a frame without colour is rejected before any detection
     orig = det_mod._detect
     det_mod._detect = broken
     try:
