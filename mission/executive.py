@@ -6,6 +6,8 @@ flame with the MTC hold ξ under the ignition interlock → stow → walk to x_k
 
 Recovery: detection fails (no answer, or any reason: "ambiguous" included, whose best-guess
 pixel is logged but never flamed) → one re-observation from an adjusted pose, then skip with a reason;
+CAMERA_FAULT_FRAMES frames in a row without a usable image (none arrived, or "bad_image") → abort: the
+camera is at fault, and walking on would skip every weed left;
 IK or motion failure → re-plan once, then skip; link loss or E-stop → igniter off, stow if
 possible, abort (MissionAborted → exit 1). The arm is stowed before every body move
 (assumption a.2: body and arm never move together), and the igniter is extinguished before
@@ -38,6 +40,9 @@ from .ordering import x_kmax as x_kmax_of
 
 
 TF_PERIOD_NS = 100_000_000  # /tf while the body or the arm moves: at most every 0.1 s of the run's clock
+CAMERA_FAULT_FRAMES = 4  # frames in a row without a usable image (capture timed out, or the detector said
+# "bad_image": black, over-exposed, no colour, noise) after which the mission aborts: two targets' worth of
+# observations (each has two attempts), so a single dropped or black frame only costs a re-observation
 ROI_MARGIN = 1.5  # × r_w: the MPOI lies in the TROI by design; the margin keeps plants whose centre sits on the rim
 
 
@@ -152,6 +157,7 @@ class Executive:
         self.fuel_per_s = fuel_per_s
         self.fuel_reserve = float(fuel_reserve)
         self._fuel_rate_seen = 0.0
+        self._unusable_frames = 0  # frames in a row without a usable image (CAMERA_FAULT_FRAMES)
 
     def _hook(self, phase: str, elapsed_s: float = 0.0) -> None:
         """Bench fault schedule: lets scheduled faults strike at this phase (no-op on the robot)."""
@@ -349,6 +355,7 @@ class Executive:
                 frame = self.d.camera.capture(self.timeouts["camera"])
             except DriverTimeout as e:
                 self._event("warning", f"{tid}: no camera frame ({e}), attempt {attempt + 1}", target=tid)
+                self._unusable_frame("no frame arrived")
                 continue
             st_b, st_a = self.d.body.state(), self.d.arm.state()
             T_cam = self.robot.T_field_base(st_b.pose) @ st_a.camera_pose
@@ -358,6 +365,11 @@ class Executive:
             if miss and self.log:  # one /detection per attempt, also when a fault replaced the detector
                 self.log.detection(self.now_ns(), tid, None, 0.0, "fault_injected", None)
             mpoi, why = (None, "fault_injected") if miss else self._detect_in(frame.image, T_cam, troi, tid)
+            if not miss:  # (an injected detector miss says nothing about the camera)
+                if why == "bad_image":
+                    self._unusable_frame("the detector said bad_image")
+                else:
+                    self._unusable_frames = 0
             for other in also or []:
                 m, _ = self._detect_in(frame.image, T_cam, other, other.id)
                 if m is not None:
@@ -366,6 +378,13 @@ class Executive:
                 return mpoi, also_seen
             self._event("warning", f"{tid}: detection failed ({why}), attempt {attempt + 1}", target=tid, reason=why)
         return None, also_seen
+
+    def _unusable_frame(self, what: str) -> None:
+        """Count a frame without a usable image; CAMERA_FAULT_FRAMES in a row abort the mission."""
+        self._unusable_frames += 1
+        if self._unusable_frames >= CAMERA_FAULT_FRAMES:
+            raise MissionAborted(f"camera: {self._unusable_frames} frames in a row without a usable image (last: {what}); "
+                                 "check the camera (lens, exposure, colour mode, cable)")
 
     def _detect_in(self, image: np.ndarray, T_cam: np.ndarray, troi: TROI, tid: str) -> tuple[np.ndarray | None, str | None]:
         """Detect the MPOI of one TROI in an image: (field point via H⁻¹, None), or (None, why).

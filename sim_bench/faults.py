@@ -36,8 +36,8 @@ FAULT_KINDS: dict[str, str] = {
     "flame_out": "flame",  # the flame goes out mid-hold (params after_s, default 1.0)
     "fuel_empty": "flame",  # the tank runs dry while flaming
     "fuel_low": "walk",  # the tank holds only params.level (default 0.005) as a target begins
-    "camera_drop": "observe",  # the next frame is dropped (capture times out)
-    "black_frame": "observe",  # the next frame is black
+    "camera_drop": "observe",  # the next params.frames (default 1) frames are dropped (capture times out)
+    "black_frame": "observe",  # the next params.frames (default 1) frames are black
     "detector_miss": "observe",  # the detector finds nothing in the next frame
     "body_link_loss": "walk",  # body link lost (LinkLost)
     "arm_link_loss": "observe",  # arm link lost / CAN bus-off (LinkLost)
@@ -62,6 +62,8 @@ FAULT_PARAMS: dict[str, dict[str, tuple]] = {
     "flame_out": {"after_s": _SECONDS},
     "fuel_low": {"level": (float, 0.0, 1.0)},
     "igniter_stall": {"stall_s": (float, 0.0, 60.0)},
+    "camera_drop": {"frames": (int, 1, 1000)},
+    "black_frame": {"frames": (int, 1, 1000)},
 }
 
 
@@ -74,6 +76,9 @@ def _check_params(f: "Fault") -> None:
         if typ is float:
             ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi
             need = f"a number in [{lo:g}, {hi:g}]"
+        elif typ is int:
+            ok = isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi
+            need = f"a whole number in [{lo}, {hi}]"
         else:
             ok, need = isinstance(v, typ), f"a {typ.__name__}"
         if not ok:
@@ -220,9 +225,9 @@ class FaultInjector:
         elif k == "fuel_low":
             d.igniter.board.fuel = float(p.get("level", 0.005))
         elif k == "camera_drop":
-            d.camera.inject_drop(1)
+            d.camera.inject_drop(int(p.get("frames", 1)))
         elif k == "black_frame":
-            d.camera.inject_black(1)
+            d.camera.inject_black(int(p.get("frames", 1)))
         elif k == "detector_miss":
             return {"detector_miss"}
         elif k == "body_link_loss":

@@ -174,6 +174,26 @@ def test_a_fault_still_latched_after_the_bounded_retry_stops_the_mission(core, t
     assert not final["flame_on"] and not final["armed"]
     assert check_ignition_invariant(log).ok
 
+
+@pytest.mark.parametrize("kind", ["black_frame", "camera_drop"])
+def test_a_camera_that_gives_no_usable_frame_stops_the_mission(core, tmp_path, kind):
+    """docs/faults.md: CAMERA_FAULT_FRAMES (4) frames in a row without a usable image (black, or
+    never arriving) are a camera fault, not four weeds without a plant: A is skipped after its two
+    attempts, the mission aborts on B's second (exit 1) instead of walking the field to skip every
+    weed left. Three in a row cost A and one look at B, which the next good frame then flames."""
+    result, final, _, log = run_mission(core, tmp_path, [Fault(kind, 0, params={"frames": 4})], trois=THREE)
+    a, b, c = result.targets
+    assert result.aborted and "camera: 4 frames in a row without a usable image" in result.aborted, result.aborted
+    assert a.reason == "detection_failed" and not a.flamed
+    assert [b.reason, c.reason] == ["mission_aborted"] * 2 and not b.flamed
+    assert not final["flame_on"] and not final["armed"] and final["stowed"]
+    assert check_ignition_invariant(log).ok
+
+    result, final, _, log = run_mission(core, tmp_path / "three", [Fault(kind, 0, params={"frames": 3})], trois=THREE)
+    assert not result.aborted, result.aborted
+    assert [t.flamed for t in result.targets] == [False, True, True]
+    assert result.targets[0].reason == "detection_failed"
+
 def test_igniter_trip_from_a_host_stall_gets_one_rearmed_trial(core, tmp_path):
     """A 0.15 s host stall mid-hold: the board trips (valve shut, disarmed) and the executive
     arms once more; a second stall on the retry leaves the target unflamed, never a third trial."""
