@@ -64,6 +64,10 @@ def _validate(tmp_path: Path, text: str | bytes, capsys, name: str = "m.yaml") -
          "fault slip: parameter dx must be a number in [-5, 5] (got nan)"),
         (GOOD.replace("seed: 3", "seed: 3, faults: [{kind: slip, target: 0, params: {dx: abc}}]"), "parameter dx must be a number"),
         (GOOD.replace("seed: 3", "seed: 3, faults: [{kind: slip, target: 0, params: {zzz: 1}}]"), "unknown parameter 'zzz'"),
+        (GOOD.replace("seed: 3", "seed: 3, faults: [{kind: black_frame, target: 0, params: {frames: 2.5}}]"),
+         "fault black_frame: parameter frames must be a whole number in [1, 1000] (got 2.5)"),
+        (GOOD.replace("seed: 3", "seed: 3, faults: [{kind: camera_drop, target: 0, params: {frames: 0}}]"),
+         "parameter frames must be a whole number"),
         (GOOD.replace("seed: 3", "seed: 3, faults: 'random:1" + "0" * 5000 + "'"), "random seed must be ≤"),
         # hardware links: checked here, not when zenoh or python-can refuse them at run time
         (HW.replace("ZENOH", "{connect: [garbage]}"), "drivers.zenoh.connect: a zenoh endpoint is <protocol>/<address>"),
