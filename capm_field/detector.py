@@ -172,6 +172,10 @@ def _looks(image_bgr: np.ndarray, win: SearchWindow, debug: dict | None) -> tupl
         second = {}
         choice = choose(image_bgr, win, vivid=True, debug=dbg2, first=second)
         if isinstance(choice, Choice) and (choice.best > SMALL_GAIN * first["best"] or (
+                # or another plant, scoring higher, where the second look turned the first one away
+                # (not plant-coloured in −a*: a tinted soil patch the first look took, the weed too pale for G*)
+                choice.best > REJECTED_GAIN * first["best"] and not _boxes_meet([second["box"]], [first["box"]])
+                and _boxes_meet([first["box"]], second.get("rejected", []))) or (
                 # or the same plant, segmented far more completely (yellow-green parts, petioles)
                 second["feat"]["area"] >= WHOLE_GAIN * first["feat"]["area"]
                 and _boxes_meet([second["box"]], [first["box"]]))):
@@ -231,6 +235,9 @@ SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below wh
 # 3 fewer wrong and p90 −0.3 to −1.1 mm on seeds 0–3, +3 ms median (paired) — the −a* index alone
 # costs ~4 ms a frame; not taken while the median is at the 20 ms target)
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it ...
+REJECTED_GAIN = 1.0  # ... or this × if it is another plant and the second look turned the first's away (session 69,
+# bench seeds 0–11: wrong 51 → 50, a seedling 209.2 → 5.7 mm, seed 10 case 45, the case it was made for, nothing else
+# moved; seeds 30–33 nothing moved; the sealed seeds 34–37: wrong 24 → 23, 1 answer better, none worse)
 WHOLE_GAIN = 1.3  # ... or be the same plant (boxes meet) with this × its stage-1 area (bench seeds 0–3:
 # wrong 20 → 18, 11 answers ≥ 2 mm better, 3 worse at 1.5; 1.3 with PALE_G90 0.07, session 58, below)
 FAINT_SIGMA = 6.0  # first choice's G* p90 over the soil, in soil σ, below which the second look also runs: a
@@ -262,7 +269,8 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     """One look (G* or, with `vivid`, CIELAB −a*): the plant is chosen (`choose`), then its
     centre is found (`_locate`). `first` receives the full-image boxes of the candidates within
     0.8 of the best score under "contenders" (those an "ambiguous" is about), the best score
-    under "best" and the chosen candidate's features under "feat". `win`: the frame's
+    under "best", the chosen candidate's features under "feat" and the boxes of the components
+    the look's colour rules turned away under "rejected" (if any). `win`: the frame's
     `search_window(img, roi_in)` when already made."""
     if win is None:
         win = search_window(img, roi_in)

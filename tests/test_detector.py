@@ -729,8 +729,8 @@ def test_target_bare_soil_on_a_large_batch(large_batch) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="below target: see docs/perception.md (clover centres, faint seedlings)")
 def test_target_detection_on_a_large_batch(large_batch) -> None:
+    # (met: 3 of 240 missed, session 69, and already with session 68's code; it was a strict xfail, so `-m slow` failed)
     assert large_batch["missed"] <= 0.02 * large_batch["total"]
 
 
@@ -2291,3 +2291,15 @@ def test_candidate_features_on_the_box_crop_equal_those_on_the_whole_grid(seed: 
     assert crop == whole
     if l0 > 0 or t0 > 0:  # the origin matters: without it the centroid (and so d) moves
         assert candidate_features(gm[t0:b0, l0:r0], vi[t0:b0, l0:r0], small[t0:b0, l0:r0], *args)["d"] != whole["d"]
+
+
+def test_the_second_looks_plant_replaces_a_first_choice_it_turned_away() -> None:
+    """Bench seed 10 case 45: a pale yellow-green seedling that G* does not segment, and farther off a
+    small soil-tinted patch that G* takes for a plant (raw G − max(R, B) −0.003). The second look
+    (−a*) segments the seedling and turns the patch away (not plant-coloured there), scoring its own
+    choice 1.18× the first's: under SMALL_GAIN, but a first choice the second look turned away
+    counts for less (REJECTED_GAIN). It was answered on the patch, 209 mm off."""
+    case, img, roi = _bench_frame(10, 45, "seedling")
+    det = detect_centre(img, roi)
+    assert det.reason is None, det
+    assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.015, det
