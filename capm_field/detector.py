@@ -235,9 +235,9 @@ SMALL_PLANT = 0.003  # first choice's score / ROI pixels (stage-1 grid) below wh
 # 3 fewer wrong and p90 −0.3 to −1.1 mm on seeds 0–3, +3 ms median (paired) — the −a* index alone
 # costs ~4 ms a frame; not taken while the median is at the 20 ms target)
 SMALL_GAIN = 1.5  # the second look's choice must score this × the first's to replace it ...
-REJECTED_GAIN = 1.0  # ... or this × if it is another plant and the second look turned the first's away (session 69,
-# bench seeds 0–11: wrong 51 → 50, a seedling 209.2 → 5.7 mm, seed 10 case 45, the case it was made for, nothing else
-# moved; seeds 30–33 nothing moved; the sealed seeds 34–37: wrong 24 → 23, 1 answer better, none worse)
+REJECTED_GAIN = 1.0  # ... or this × if it is another plant and the second look turned the first's away (session
+# 69, bench seeds 0–11: wrong 51 → 50, a seedling 209.2 → 5.7 mm, seed 10 case 45, the case it was made for, nothing
+# else moved; seeds 30–33 nothing moved; the sealed seeds 34–37: wrong 24 → 23, 1 answer better, none worse)
 WHOLE_GAIN = 1.3  # ... or be the same plant (boxes meet) with this × its stage-1 area (bench seeds 0–3:
 # wrong 20 → 18, 11 answers ≥ 2 mm better, 3 worse at 1.5; 1.3 with PALE_G90 0.07, session 58, below)
 FAINT_SIGMA = 6.0  # first choice's G* p90 over the soil, in soil σ, below which the second look also runs: a

@@ -146,8 +146,9 @@ def search_window(img: np.ndarray, roi_in: RoiLike) -> SearchWindow | Detection:
 
 MONO_CHROMA = 0  # grey levels: largest |B − G| and |G − R| on the stage-1 grid of a frame without colour: grey
 # frames, grey JPEGs decoded to BGR and mono YUV streams have exactly equal channels. Measured (session 69): bench
-# seeds 0–11, 20–23, 30–37 ≥ 3 (7 200 frames; 3 and 6 on two dim ones, mean grey 29–40, the 3 a bare soil; median 82); field
-# photos ≥ 38, in the photographer's shadow, bare ≥ 22; other renderer ≥ 21; photo-like ≥ 27; stones on soils ≥ 27
+# seeds 0–11, 20–23, 30–37 ≥ 3 (7 200 frames; 3 and 6 on two dim ones, mean grey 29–40, the 3 a bare soil;
+# median 82); field photos ≥ 38, in the photographer's shadow, bare ≥ 22; other renderer ≥ 21; photo-like ≥ 27;
+# stones on soils ≥ 27
 FLAT_RANGE = 16  # grey levels: a blank frame under sensor noise σ ≤ 5 stays within it on the stage-1 grid
 NOISE_COHERENCE = 0.65  # measured: bench, photo-like and other-renderer frames ≥ 0.87; RGB noise ≤ 0.56
 NOISE_SIGMA = 24.0  # grey levels of pixel noise (`_pixel_noise` of the grey level, or the colour noise,
