@@ -270,7 +270,7 @@ def _detect(img: np.ndarray, roi_in: RoiLike, debug: dict | None = None, vivid: 
     centre is found (`_locate`). `first` receives the full-image boxes of the candidates within
     0.8 of the best score under "contenders" (those an "ambiguous" is about), the best score
     under "best", the chosen candidate's features under "feat" and the boxes of the components
-    the look's colour rules turned away under "rejected" (if any). `win`: the frame's
+    the second look's colour rules turned away under "rejected" (if any). `win`: the frame's
     `search_window(img, roi_in)` when already made."""
     if win is None:
         win = search_window(img, roi_in)

@@ -113,7 +113,8 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
         feats[k] = dict(f)
         if ok:
             keep.append(k)
-        elif first is not None:  # the full-image boxes of the components this look turned away
+        elif vivid and first is not None:  # the boxes of the components the second look turned away (read
+            # by `detector._looks` only for that look: the first look does not make them)
             first.setdefault("rejected", []).append(mask_box(np.array([l0, l0 + w0 - 1]), np.array([t0, t0 + h0 - 1]),
                                                              to_full))
         if debug is not None:  # every component's colour features and full-image centroid
