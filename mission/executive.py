@@ -35,6 +35,7 @@ from drivers.interfaces import DriverError, DriverSet, DriverTimeout, EStopActiv
 
 from .config import FUEL_RESERVE, hold_fuel, holds_left
 from .interlock import IgnitionInterlock
+from .interrupts import HeldSignals
 from .ordering import order_trois
 from .ordering import x_kmax as x_kmax_of
 
@@ -722,6 +723,7 @@ class Executive:
         self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
         self._tid, self._moves, self._e_start = "", 0, 0.0
         aborted = interrupted = None
+        late = HeldSignals()  # from the first interrupt or the end of the targets on
         try:
             self._check_startup()
             if field_order is not None:
@@ -762,12 +764,23 @@ class Executive:
             aborted = f"internal error: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
             self._event("error", "".join(traceback.format_exception(e))[-8000:])
         except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM (`capm-field run` raises it for that too):
-            # ended like an abort and recorded; a second one during the ending propagates (the
-            # caller closes the drivers, igniter first)
+            late.start()  # ended like an abort and recorded; a second press is noted, not raised
             interrupted = str(e) or "SIGINT"
             aborted = f"interrupted ({interrupted})"
-        finally:
+        except BaseException:  # not ours to end (SystemExit …): only made safe
             self._safe()
+            raise
+        late.start()
+        try:
+            self._end(results, len(ordered), aborted, interrupted, late)
+        finally:
+            late.stop()
+        return MissionResult(results, self.total_energy, time.perf_counter() - t0, aborted, [t.id for t in ordered], interrupted)
+
+    def _end(self, results: list, n: int, aborted: str | None, interrupted: str | None, late: HeldSignals) -> None:
+        """The ending of every run, with Ctrl-C / SIGTERM held (`late`): flame off, then for an
+        abort body stop and (not after an interrupt) arm stow, the final igniter state."""
+        self._safe()
         if aborted:
             self._event("error", f"mission aborted: {aborted}")
             try:
@@ -775,7 +788,8 @@ class Executive:
             except Exception:  # noqa: BLE001
                 pass
             try:
-                if not interrupted:  # stopped from outside: no new arm motion the operator did not ask for
+                # stopped from outside: no new arm motion the operator did not ask for
+                if not interrupted and not late.received:
                     self.d.arm.stow(self.timeouts["arm"])
             except Exception:  # noqa: BLE001 - stow "if possible"
                 pass
@@ -786,12 +800,13 @@ class Executive:
                     r.reason = "mission_aborted"
         else:
             try:
-                self._set_phase(len(ordered), len(ordered), "-", "done")
+                self._set_phase(n, n, "-", "done")
             except Exception:  # noqa: BLE001
                 pass
             self._event("info", f"mission done: energy {self.total_energy:.3f}")
         self._igniter_state()
-        return MissionResult(results, self.total_energy, time.perf_counter() - t0, aborted, [t.id for t in ordered], interrupted)
+        if late.received:
+            self._event("warning", f"{', '.join(late.received)} during the run's ending: noted; the ending was finished")
 
     def _check_startup(self) -> None:
         b = self.d.body.state()

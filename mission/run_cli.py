@@ -194,6 +194,7 @@ def _run(a: argparse.Namespace) -> int:
     from capm_field.reachability import get_maps
 
     from .executive import Executive
+    from .interrupts import HeldSignals
     from .runlog import RunLogHandler
 
     quiet = a.quiet
@@ -235,59 +236,64 @@ def _run(a: argparse.Namespace) -> int:
     else:
         now_ns = time.time_ns
     log = _open_log(out, made, drivers, robot, mission, a, bench=world is not None)
-    progress = _Progress(not quiet)
-    to_runlog = RunLogHandler(log, now_ns)
-    try:  # from here on the drivers and the log are closed whatever happens
-        hook = None
-        if world is not None:
-            from sim_bench.faults import FaultInjector
-
-            if faults:
-                injector = FaultInjector(faults, drivers, log_event=lambda lvl, msg: log.event(now_ns(), lvl, msg))
-                hook = injector.on
-        # warnings and errors of the software's Python loggers go to the console and into the run log
-        logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-        logging.getLogger().addHandler(to_runlog)
-        ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts, hook=hook,
-                       fuel_per_s=mission.igniter.fuel_per_s, fuel_reserve=mission.igniter.fuel_reserve)
-        result = ex.run()
-    finally:
-        logging.getLogger().removeHandler(to_runlog)
-        progress.close()
-        try:
-            drivers.close()
-        finally:
-            log.close()
-    summary = result.to_json()
-    summary["log_s"] = log.call_time_s  # time spent in RunLog calls (logging cost)
-    if log.write_error:  # the run log stopped taking writes (disk full …): it ends there
-        summary["log_error"] = log.write_error
-    summary.update({"name": mission.name, "mission": str(a.mission), "planner": mission.planner,
-                    "seed": a.seed if a.seed is not None else getattr(mission.drivers, "seed", None), "images": mission.output.images})
-    tmp = out / "summary.json.tmp"
+    closing = HeldSignals()  # once the mission has returned, Ctrl-C is noted: the summary is still written
     try:
-        _write_new(tmp, json.dumps(summary, indent=1))
-        os.replace(tmp, out / "summary.json")
-    except OSError as e:  # (a full disk): the run is over, its summary must not be lost
-        tmp.unlink(missing_ok=True)
-        print(f"capm-field run: cannot write {out / 'summary.json'}: {e.strerror or e}; the summary follows on stdout", file=sys.stderr)
-        print(json.dumps(summary))
-        return 1
-    flamed = sum(t.flamed for t in result.targets)
-    if not quiet:
-        print(
-            f"{flamed}/{len(result.targets)} flamed, success rate {result.success_rate:.2f}, energy {result.total_energy:.2f}, "
-            f"wall {result.wall_s:.1f} s (logging {log.call_time_s:.2f} s, {100 * log.call_time_s / max(result.wall_s, 1e-9):.1f} %) → {out}/run.mcap, {out}/summary.json"
-        )
-    if log.write_error:
-        print(f"capm-field run: run log {out / 'run.mcap'} incomplete (readable up to the failure): {log.write_error}", file=sys.stderr)
-    if result.interrupted:
-        print(f"capm-field run: interrupted ({result.interrupted}): flame off, body stopped; {out / 'summary.json'} marked interrupted", file=sys.stderr)
-        return 128 + signal.Signals[result.interrupted]
-    if result.aborted:
-        print(f"capm-field run: mission aborted: {result.aborted}", file=sys.stderr)
-        return 1
-    return 1 if log.write_error else 0
+        progress = _Progress(not quiet)
+        to_runlog = RunLogHandler(log, now_ns)
+        try:  # from here on the drivers and the log are closed whatever happens
+            hook = None
+            if world is not None:
+                from sim_bench.faults import FaultInjector
+
+                if faults:
+                    injector = FaultInjector(faults, drivers, log_event=lambda lvl, msg: log.event(now_ns(), lvl, msg))
+                    hook = injector.on
+            # warnings and errors of the software's Python loggers go to the console and into the run log
+            logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+            logging.getLogger().addHandler(to_runlog)
+            ex = Executive(trois, mission.start.se2(), mission.end_pose(), drivers, core, planner, log=log, progress=progress, truth=truth, now_ns=now_ns, timeouts=mission.timeouts, hook=hook,
+                           fuel_per_s=mission.igniter.fuel_per_s, fuel_reserve=mission.igniter.fuel_reserve)
+            result = ex.run()
+        finally:
+            closing.start()
+            logging.getLogger().removeHandler(to_runlog)
+            progress.close()
+            try:
+                drivers.close()
+            finally:
+                log.close()
+        summary = result.to_json()
+        summary["log_s"] = log.call_time_s  # time spent in RunLog calls (logging cost)
+        if log.write_error:  # the run log stopped taking writes (disk full …): it ends there
+            summary["log_error"] = log.write_error
+        summary.update({"name": mission.name, "mission": str(a.mission), "planner": mission.planner,
+                        "seed": a.seed if a.seed is not None else getattr(mission.drivers, "seed", None), "images": mission.output.images})
+        tmp = out / "summary.json.tmp"
+        try:
+            _write_new(tmp, json.dumps(summary, indent=1))
+            os.replace(tmp, out / "summary.json")
+        except OSError as e:  # (a full disk): the run is over, its summary must not be lost
+            tmp.unlink(missing_ok=True)
+            print(f"capm-field run: cannot write {out / 'summary.json'}: {e.strerror or e}; the summary follows on stdout", file=sys.stderr)
+            print(json.dumps(summary))
+            return 1
+        flamed = sum(t.flamed for t in result.targets)
+        if not quiet:
+            print(
+                f"{flamed}/{len(result.targets)} flamed, success rate {result.success_rate:.2f}, energy {result.total_energy:.2f}, "
+                f"wall {result.wall_s:.1f} s (logging {log.call_time_s:.2f} s, {100 * log.call_time_s / max(result.wall_s, 1e-9):.1f} %) → {out}/run.mcap, {out}/summary.json"
+            )
+        if log.write_error:
+            print(f"capm-field run: run log {out / 'run.mcap'} incomplete (readable up to the failure): {log.write_error}", file=sys.stderr)
+        if result.interrupted:
+            print(f"capm-field run: interrupted ({result.interrupted}): flame off, body stopped; {out / 'summary.json'} marked interrupted", file=sys.stderr)
+            return 128 + signal.Signals[result.interrupted]
+        if result.aborted:
+            print(f"capm-field run: mission aborted: {result.aborted}", file=sys.stderr)
+            return 1
+        return 1 if log.write_error else 0
+    finally:
+        closing.stop()
 
 
 def _open_log(out: Path, made: bool, drivers, robot, mission: Mission, a: argparse.Namespace, *, bench: bool):

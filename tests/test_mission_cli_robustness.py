@@ -327,6 +327,47 @@ def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc):
 
 
 
+_TWICE = """\
+import os, signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal (see _INTERRUPT)
+import mission.executive as ex, mission.run_cli as rc
+def again(f):
+    def g(*a, **k):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)  # the handler runs here: it must not raise
+        return f(*a, **k)
+    return g
+real = ex.Executive._check_startup
+def interrupted(self):
+    real(self)
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5)
+ex.Executive._check_startup = interrupted
+ex.Executive._igniter_state = again(ex.Executive._igniter_state)  # in the executive's ending
+rc._write_new = again(rc._write_new)  # while the summary is written
+from capm_field.cli import main
+sys.exit(main(['run', {mission!r}, '--out', {out!r}, '--quiet']))
+"""
+
+
+def test_second_ctrl_c_during_the_ending_is_noted_and_the_summary_still_written(tmp_path):
+    """A second Ctrl-C raised inside the ending: the summary (and any step after the one it hit) was lost."""
+    from mission.runlog_read import iter_run
+
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-c", _TWICE.format(mission=str(p), out=str(out))], capture_output=True, text=True,
+                       timeout=180)
+    assert r.returncode == 130, r.stderr
+    assert "Traceback" not in r.stderr and r.stderr.count("already stopping") == 2, r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] is True and s["aborted"] == "interrupted (SIGINT)", s
+    logs = [m.data.message for m in iter_run(out / "run.mcap", topics={"/log"})]
+    assert any("SIGINT during the run's ending: noted" in x for x in logs), logs
+    last = [m.data for m in iter_run(out / "run.mcap", topics={"/igniter/state"})][-1]
+    assert not last.flame_on and not last.armed
+
+
 # ---- found by a malformed-input audit (session 52) ------------------------------------------------------
 def test_prescan_ids_generated_around_listed_ones(tmp_path):
     """A row without id was T<row count so far>, even when a listed row had that id: a duplicate."""

@@ -1,0 +1,53 @@
+"""Ctrl-C / SIGTERM while a run is ending: noted, not raised.
+
+The first Ctrl-C (or SIGTERM, which `capm-field run` turns into the same KeyboardInterrupt) stops the
+mission. The ending after it (flame off, body stopped, the run log closed, summary.json written) takes
+a few seconds, each step bounded by its driver timeout; a second press used to raise inside it and cut
+the summary (and any step after the one it landed in). While a `HeldSignals` is started, the two
+signals are recorded and the operator is told the run is already stopping. Ctrl-\\ (SIGQUIT) still
+kills the process at once; the igniter board then shuts itself on the missing keep-alives.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+
+_HELD = (signal.SIGINT, signal.SIGTERM)
+STOPPING = ("capm-field run: already stopping (flame off, body stopped, run log and summary being written); "
+            "Ctrl-\\ kills at once\n")
+
+
+class HeldSignals:
+    """SIGINT / SIGTERM recorded in `received` (signal names, in order) instead of raising, between
+    `start()` and `stop()`. Both are idempotent; outside the main thread (where Python cannot set
+    handlers) nothing is held and `start()` returns False."""
+
+    def __init__(self, message: str = STOPPING) -> None:
+        self.message = message
+        self.received: list[str] = []
+        self._previous: dict[int, object] | None = None
+
+    def _note(self, signum: int, frame) -> None:
+        self.received.append(signal.Signals(signum).name)
+        try:
+            os.write(2, self.message.encode())  # async-signal-safe, unlike print
+        except OSError:
+            pass
+
+    def start(self) -> bool:
+        if self._previous is not None:
+            return True
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        self._previous = {s: signal.signal(s, self._note) for s in _HELD}
+        return True
+
+    def stop(self) -> None:
+        if self._previous is None:
+            return
+        for s, h in self._previous.items():
+            # None: a handler set outside Python; the default is the nearest we can restore
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+        self._previous = None
