@@ -40,6 +40,8 @@ from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, Link
 
 # board events that come with the board disarming itself (reported as ignite()'s reason)
 TRIP_EVENTS = ("keepalive_timeout", "bad_frame", "host_lost")
+# the board shuts the valve and disarms no later than this after the last valid IGNITE (can.md)
+KEEPALIVE_BOUND_S = 0.1
 
 
 class CanIgniter(Igniter):
@@ -56,6 +58,7 @@ class CanIgniter(Igniter):
         self._tx = threading.Lock()
         self.keepalives_sent = 0
         self.last_keepalive_ns: int | None = None
+        self._last_ignite_ns = 0  # monotonic: any IGNITE sent (the first of an ignite() is not a keep-alive)
         self.disarmed_by: str | None = None  # Event in the status where Armed last went 1 -> 0
         self.link = CanLink(
             self.cfg.bus,
@@ -109,7 +112,10 @@ class CanIgniter(Igniter):
         with self._tx:
             if self._closed and cmd not in (IGN_EXTINGUISH, IGN_DISARM):
                 return False
-            return self.link.send(self.link.encoder.encode("IGN_CMD", {"Command": cmd}))
+            sent = self.link.send(self.link.encoder.encode("IGN_CMD", {"Command": cmd}))
+            if sent and cmd == IGN_IGNITE:
+                self._last_ignite_ns = time.monotonic_ns()
+            return sent
 
     def _wait(self, pred: Callable[[], bool], deadline: float, what: str) -> None:
         wait_for(self._cv, self.link, pred, deadline, what)
@@ -230,10 +236,17 @@ class CanIgniter(Igniter):
             pass
 
     def state(self) -> IgniterState:
+        """The board's last status; with the link lost (`fault="link_lost"`) that status is stale, and
+        a flame it showed is reported off (and the board disarmed) once `KEEPALIVE_BOUND_S` has passed
+        since this host's last IGNITE: the board's keep-alive trip guarantees it (docs/protocols/can.md)."""
         with self._cv:
             s, stamp = dict(self._status), self._status_stamp
-        fault = "link_lost" if not self.link.ok else self.fault
-        return IgniterState(armed=bool(s["Armed"]), flame_on=bool(s["FlameOn"]), fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault=fault)
+        armed, flame = bool(s["Armed"]), bool(s["FlameOn"])
+        if self.link.ok:
+            return IgniterState(armed=armed, flame_on=flame, fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault=self.fault)
+        if flame and (time.monotonic_ns() - self._last_ignite_ns) / 1e9 > KEEPALIVE_BOUND_S:
+            armed = flame = False
+        return IgniterState(armed=armed, flame_on=flame, fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault="link_lost")
 
     @property
     def rx_stats(self):

@@ -31,6 +31,7 @@ from drivers.can.codec import (
     is_protected,
 )
 from drivers.can.link import open_bus
+from drivers.can_igniter import KEEPALIVE_BOUND_S
 from drivers.interfaces import LinkLost
 from sim_bench.can_rig import CanBench, RawHost
 from sim_bench.drivers_bench import measure_can_link_loss, measure_can_stream, measure_igniter_cutoff
@@ -261,6 +262,12 @@ def test_bus_off_during_ignite_raises_link_lost_and_flame_off():
             ign.ignite(2.0, lambda: True, timeout=3.0)
         t_off.join()
         assert not rs.board.flame_on and not rs.board.valve_open  # keep-alives never reached it
+        # the last status heard (flame on) is stale: by the board's keep-alive trip, off and disarmed
+        # KEEPALIVE_BOUND_S after the last IGNITE sent
+        time.sleep(KEEPALIVE_BOUND_S)
+        seen = ign._status
+        st = ign.state()
+        assert st.fault == "link_lost" and not st.flame_on and not st.armed, (st, seen)
         with pytest.raises(LinkLost):
             bench.arm.move_joints(np.zeros(6), timeout=1.0)
 
