@@ -25,9 +25,11 @@ run: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/capm-field bench --trials 1000
 
-## test: the default test suite (slow suites: make test PYTEST_ARGS='-m slow')
+## test: the default test suite in TEST_JOBS processes (pytest-xdist; slow suites: make test PYTEST_ARGS='-m slow',
+## one process: make test TEST_JOBS=0)
+TEST_JOBS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n $(TEST_JOBS) $(PYTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
