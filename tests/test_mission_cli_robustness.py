@@ -167,7 +167,8 @@ def test_fuel_settings_that_never_fire_are_refused(tmp_path, capsys):
 
 # ---- 11: size ---------------------------------------------------------------------------------------------
 def test_large_mission_files_are_refused_fast_and_not_blamed_on_aliases(tmp_path):
-    t0 = time.process_time()
+    # this thread's CPU time: the process's also counts threads earlier tests of a worker left running
+    t0 = time.thread_time()
     for size, expect in ((1_950_000, "3.7 MiB is not a mission file"), (500_000, "the YAML has more than 100000 nodes")):
         with pytest.raises(MissionError) as ei:  # a flow list without a single alias
             load_mission(_write(tmp_path, "name: [" + "1," * size + "1]\n"))
@@ -175,7 +176,7 @@ def test_large_mission_files_are_refused_fast_and_not_blamed_on_aliases(tmp_path
     rows = "".join(f"    - {{id: W{i:06d}, x: {i % 100 * 0.01:.2f}, y: 0.00, r: 0.2}}\n" for i in range(10_000))  # 0.45 MiB
     with pytest.raises(MissionError, match="field.trois: List should have at most 5000 items"):
         load_mission(_write(tmp_path, "field:\n  trois:\n" + rows + "start: {x: 0, y: 0}\ndrivers: {kind: bench}\n"))
-    assert time.process_time() - t0 < 8.0  # was ~20 s for the first file alone (two pure-Python parses)
+    assert time.thread_time() - t0 < 12.0  # was ~20 s for the first file alone (two pure-Python parses); ~7 s now
 
 
 # ---- 4, 5, 6, 7: run outputs ------------------------------------------------------------------------------
