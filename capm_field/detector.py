@@ -296,7 +296,12 @@ def _box_parts(mask: np.ndarray) -> np.ndarray:
     area lying > SPECK_GAP × the larger parts' diameter from them; the box is made without specks
     only when they inflate its diagonal ≥ SPECK_INFLATION× (smaller changes of the grid only move
     answers either way). The specks stay in the mask (stage 2 keeps what falls in its crop)."""
-    n, lab, stats, _ = components(mask)
+    # on the mask's bounding box (the same labels, boxes and chamfer distances; ~0.6 ms less a frame
+    # than labelling the whole grid)
+    bx, by, bw, bh = _grid_box(mask)
+    if bw == 0:
+        return mask
+    n, lab, stats, _ = components(mask[by:by + bh, bx:bx + bw])
     if n <= 2:
         return mask
     area = stats[1:, cv2.CC_STAT_AREA]
@@ -304,7 +309,7 @@ def _box_parts(mask: np.ndarray) -> np.ndarray:
     if small.all():  # (over 50 parts, none of them large: no plant to leave specks out of)
         return mask
     core = np.isin(lab, 1 + np.flatnonzero(~small))
-    whole = math.hypot(*_grid_box(mask)[2:])
+    whole = math.hypot(bw, bh)
     diam = math.hypot(*_grid_box(core)[2:])
     if whole < SPECK_INFLATION * diam:  # (the near specks added below only widen the core's box)
         return mask
@@ -313,7 +318,11 @@ def _box_parts(mask: np.ndarray) -> np.ndarray:
         x, y, w, h = stats[c, :4]
         if float(dist[y:y + h, x:x + w][lab[y:y + h, x:x + w] == c].min()) <= SPECK_GAP * diam:
             core |= lab == c
-    return core if whole >= SPECK_INFLATION * math.hypot(*_grid_box(core)[2:]) else mask
+    if whole < SPECK_INFLATION * math.hypot(*_grid_box(core)[2:]):
+        return mask
+    out = np.zeros_like(mask)
+    out[by:by + bh, bx:bx + bw] = core
+    return out
 
 
 def _merge_gap(f: dict, f0: dict | None) -> float:
