@@ -296,8 +296,8 @@ def _box_parts(mask: np.ndarray) -> np.ndarray:
     area lying > SPECK_GAP × the larger parts' diameter from them; the box is made without specks
     only when they inflate its diagonal ≥ SPECK_INFLATION× (smaller changes of the grid only move
     answers either way). The specks stay in the mask (stage 2 keeps what falls in its crop)."""
-    # on the mask's bounding box (the same labels, boxes and chamfer distances; ~0.6 ms less a frame
-    # than labelling the whole grid)
+    # on the mask's bounding box: the same labels, boxes and chamfer distances, 0.75 → 0.18 ms a call
+    # (cProfile, bench seed 0's 300 frames, ~1 call a frame) against labelling the whole grid
     bx, by, bw, bh = _grid_box(mask)
     if bw == 0:
         return mask

@@ -241,12 +241,12 @@ class CanIgniter(Igniter):
         since this host's last IGNITE: the board's keep-alive trip guarantees it (docs/protocols/can.md)."""
         with self._cv:
             s, stamp = dict(self._status), self._status_stamp
-        armed, flame = bool(s["Armed"]), bool(s["FlameOn"])
-        if self.link.ok:
-            return IgniterState(armed=armed, flame_on=flame, fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault=self.fault)
-        if flame and (time.monotonic_ns() - self._last_ignite_ns) / 1e9 > KEEPALIVE_BOUND_S:
-            armed = flame = False
-        return IgniterState(armed=armed, flame_on=flame, fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault="link_lost")
+        armed, flame, fault = bool(s["Armed"]), bool(s["FlameOn"]), self.fault
+        if not self.link.ok:
+            fault = "link_lost"
+            if flame and (time.monotonic_ns() - self._last_ignite_ns) / 1e9 > KEEPALIVE_BOUND_S:
+                armed = flame = False
+        return IgniterState(armed=armed, flame_on=flame, fuel=float(s["Fuel"]) / 100.0, stamp_ns=stamp, fault=fault)
 
     @property
     def rx_stats(self):
