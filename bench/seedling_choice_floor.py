@@ -4,7 +4,7 @@
 
 The bench (`sim_bench.perception_bench.make_case`) scatters distractor seedlings of 4–12 mm
 among weed seedlings of 12–40 mm, and places the weed anywhere in its TROI. For each seedling
-frame this takes the scene's true plants, their true leaf area (the parts rasterised at 0.3 mm)
+frame this takes the scene's true plants, their true leaf area (the parts rasterised at 0.1 mm)
 and their distance d from X_w in TROI radii, and scores them as the detector's stage 1 does
 (area × exp(−½(d / CENTRAL_SIGMA)²), `capm_field.plant_choice`). "ratio" is the best
 distractor's score over the weed's (distractors whose centre lies in the TROI): above 1 no
@@ -29,7 +29,7 @@ from capm_field.config import CameraConfig, TaskConfig
 from capm_field.plant_choice import AMBIGUOUS, CENTRAL_SIGMA
 from sim_bench.perception_bench import WRONG_MM, make_case
 
-RES = 0.0003  # m per raster cell of the leaf area
+RES = 0.0001  # m per raster cell of the leaf area (OpenCV fills the rim cells too: +1.5 % on a 10 mm square)
 
 
 def leaf_area(plant) -> float:
