@@ -29,6 +29,9 @@ from capm_field.config import CameraConfig, TaskConfig
 from capm_field.plant_choice import AMBIGUOUS, CENTRAL_SIGMA
 from sim_bench.perception_bench import WRONG_MM, make_case
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import perception_failures as pf  # noqa: E402  (its --seeds syntax)
+
 RES = 0.0001  # m per raster cell of the leaf area (OpenCV fills the rim cells too: +1.5 % on a 10 mm square)
 
 
@@ -56,14 +59,6 @@ def frame_ratio(case) -> tuple[float, int]:
     return best / score(weed), len(rivals)
 
 
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.strip().partition("-")
-        out += list(range(int(lo), int(hi) + 1)) if hi else [int(lo)]
-    return out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0-11")
@@ -74,7 +69,7 @@ def main(argv=None) -> int:
     cam = PinholeCamera.from_config(CameraConfig())
     delta = TaskConfig().delta
     rows = []
-    for seed in _seeds(a.seeds):
+    for seed in pf._seeds(a.seeds):
         n_bare = int(round(a.scenes * a.bare_share))
         bare = set(np.random.default_rng(seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
         answers = {}
