@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from perception_failures import CAM, _case_image  # noqa: E402
 
 from capm_field.detector import detect_centre, roi_from_troi  # noqa: E402
+from sim_bench.perception_bench import bare_cases  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -33,7 +34,7 @@ def main(argv=None) -> int:
     cv2.setNumThreads(1)
     cache = Path(a.cache or f"/tmp/pf_cache/{a.seed}")
     cache.mkdir(parents=True, exist_ok=True)
-    bare_idx = set(np.random.default_rng(a.seed).choice(a.scenes, int(round(0.15 * a.scenes)), replace=False).tolist())
+    bare_idx = bare_cases(a.seed, a.scenes, 0.15)
     rows = []
     for i in range(a.scenes):
         case, img = _case_image(a.seed, i, i in bare_idx, cache)

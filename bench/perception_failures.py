@@ -48,7 +48,7 @@ def _load_detector(path: str) -> None:
     # a file importing today's capm_field.roi is given the same Roi as today's detector (its ground
     # scale weights the plant choice); one with a Roi class of its own gets the bare conic
     ALT_TAKES_ROI = getattr(mod, "Roi", None) is Roi
-from sim_bench.perception_bench import WRONG_MM, make_case
+from sim_bench.perception_bench import WRONG_MM, bare_cases, make_case
 
 CAM = PinholeCamera.from_config(CameraConfig())
 
@@ -194,8 +194,7 @@ def _run_seed(a, seed: int, out: Path) -> list[dict]:
     else:  # one directory for several seeds: each its own (views are named by case index only)
         cache = Path(a.cache) / str(seed)
     cache.mkdir(parents=True, exist_ok=True)
-    n_bare = int(round(a.scenes * a.bare_share))
-    bare_idx = set(np.random.default_rng(seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
+    bare_idx = bare_cases(seed, a.scenes, a.bare_share)
     idx = range(a.scenes) if a.only is None else [int(s) for s in a.only.split(",")]
     save = None if a.save == "none" else a.save
     jobs = [(seed, i, i in bare_idx, cache, out, save, a.detector, a.jpeg, a.jpeg_444) for i in idx]

@@ -25,13 +25,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import perception_failures as pf  # noqa: E402  (the bench's cases and its render cache)
 
 from capm_field.detector import detect_centre, roi_from_troi  # noqa: E402
+from sim_bench.perception_bench import bare_cases  # noqa: E402
 
 
 def frames(seed: int, scenes: int, bare_share: float, cache: Path) -> list:
     """(image, roi) of the seed's bench cases, as perception_failures.py makes them."""
     cache.mkdir(parents=True, exist_ok=True)
-    n_bare = int(round(scenes * bare_share))
-    bare = set(np.random.default_rng(seed).choice(scenes, n_bare, replace=False).tolist()) if n_bare else set()
+    bare = bare_cases(seed, scenes, bare_share)
     out = []
     for i in range(scenes):
         case, img = pf._case_image(seed, i, i in bare, cache)

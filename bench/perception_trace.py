@@ -24,6 +24,7 @@ import perception_failures as pf  # noqa: E402  (the bench's cases and its rende
 from capm_field import centre_cascade, compound_leaf, fan_apex, hub_petioles, leaf_axes, plant_centre  # noqa: E402
 from capm_field import stalks  # noqa: E402
 from capm_field.detector import detect_centre, ground_centre, roi_from_troi  # noqa: E402
+from sim_bench.perception_bench import bare_cases  # noqa: E402
 
 # (module, function) pairs whose calls are listed; each is looked up where the cascade calls it from
 TRACED = [(fan_apex, "fan_apex"), (plant_centre, "petiole_centre"), (plant_centre, "line_hub"),
@@ -58,8 +59,7 @@ def install() -> None:
 
 
 def trace_case(seed: int, i: int, scenes: int, bare_share: float, cache: Path, all_candidates: bool) -> None:
-    n_bare = int(round(scenes * bare_share))
-    bare = set(np.random.default_rng(seed).choice(scenes, n_bare, replace=False).tolist()) if n_bare else set()
+    bare = bare_cases(seed, scenes, bare_share)
     case, img = pf._case_image(seed, i, i in bare, cache)
     if case is None:
         print(f"== seed {seed} case {i}: no NSV pose (not a bench case)")

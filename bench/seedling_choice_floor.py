@@ -27,7 +27,7 @@ import numpy as np
 from capm_field.camera import PinholeCamera
 from capm_field.config import CameraConfig, TaskConfig
 from capm_field.plant_choice import AMBIGUOUS, CENTRAL_SIGMA
-from sim_bench.perception_bench import WRONG_MM, make_case
+from sim_bench.perception_bench import WRONG_MM, bare_cases, make_case
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import perception_failures as pf  # noqa: E402  (its --seeds syntax)
@@ -70,8 +70,7 @@ def main(argv=None) -> int:
     delta = TaskConfig().delta
     rows = []
     for seed in pf._seeds(a.seeds):
-        n_bare = int(round(a.scenes * a.bare_share))
-        bare = set(np.random.default_rng(seed).choice(a.scenes, n_bare, replace=False).tolist()) if n_bare else set()
+        bare = bare_cases(seed, a.scenes, a.bare_share)
         answers = {}
         if a.cases:
             f = Path(a.cases) / f"seed_{seed}" / "cases.json"

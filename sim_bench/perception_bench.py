@@ -76,6 +76,12 @@ def pose_from_axis(pos: np.ndarray, z: np.ndarray, roll: float) -> np.ndarray:
     return T
 
 
+def bare_cases(seed: int, scenes: int, bare_share: float) -> set[int]:
+    """Indices of a seed's bench cases that are bare soil (round(scenes × bare_share) of them, drawn by seed)."""
+    n_bare = int(round(scenes * bare_share))
+    return set(np.random.default_rng(seed).choice(scenes, n_bare, replace=False).tolist()) if n_bare else set()
+
+
 def make_case(seed: int, index: int, camera: PinholeCamera, delta: float, bare: bool) -> Case | None:
     """One bench case (scene + NSV pose); None if no NSV pose was found."""
     rng = np.random.default_rng([seed, index])
@@ -114,8 +120,7 @@ def run(
     cv2.setNumThreads(1)
     camera = PinholeCamera.from_config(camera_cfg or CameraConfig())
     delta = TaskConfig().delta
-    n_bare = int(round(scenes * bare_share))
-    bare_idx = set(np.random.default_rng(seed).choice(scenes, n_bare, replace=False).tolist()) if n_bare else set()
+    bare_idx = bare_cases(seed, scenes, bare_share)
     err_px, err_mm, lat, rend = [], [], [], []
     per_kind: dict = {}
     n_weed = n_det = n_wrong = n_bare_ok = n_bare_total = skipped = 0
