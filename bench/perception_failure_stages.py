@@ -33,6 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import perception_failures as pf  # noqa: E402  (the bench's cases and its render cache)
+from perception_compare import load  # noqa: E402  (a --seeds run's cases.json per seed)
 
 from capm_field.detector import detect_centre, ground_centre, roi_from_troi  # noqa: E402
 from sim_bench.perception_bench import WRONG_MM  # noqa: E402
@@ -64,14 +65,16 @@ def _on(mask: np.ndarray, p) -> bool:
     return 0 <= v < mask.shape[0] and 0 <= u < mask.shape[1] and bool(mask[v, u])
 
 
-def classify(weed: np.ndarray, hull: np.ndarray, truth_px, reason: str | None, pixel, err_mm: float | None, debug: dict) -> str:
+def classify(weed: np.ndarray, hull: np.ndarray, truth_px, reason: str | None, pixel, err_mm: float | None,
+             debug: dict) -> str:
     """The furthest stage (one of STAGES) a weed frame reached.
 
-    weed, hull: the weed's image mask and its hull (`weed_mask`); truth_px: its true centre in the image; reason, pixel: the Detection's; err_mm: the answer's
-    error on the ground (None without an answer); debug: `detect_centre`'s debug dict ("comps":
-    every stage-1 component with its "c"entroid and "ok"; "cands": the grouped candidates with
-    their centroid "c", box "bb" and "score"). A component is on the weed if its centroid is on the
-    mask; a candidate also if its box holds the true centre (a clover's trefoils round a bare middle)."""
+    weed, hull: the weed's image mask and its hull (`weed_mask`); truth_px: its true centre in the
+    image; reason, pixel: the Detection's; err_mm: the answer's error on the ground (None without an
+    answer); debug: `detect_centre`'s debug dict ("comps": every stage-1 component with its
+    "c"entroid and "ok"; "cands": the grouped candidates with their centroid "c", box "bb" and
+    "score"). A component is on the weed if its centroid is on the mask; a candidate also if its box
+    holds the true centre (a clover's trefoils round a bare middle)."""
     if reason is None and err_mm is not None and err_mm <= WRONG_MM:
         return "right_now"
     if pixel is not None and reason in (None, "cut_by_border") and _on(hull, pixel):
@@ -106,18 +109,15 @@ def stage_of_case(seed: int, row: dict, cache: Path) -> dict:
                 stage=stage)
 
 
-def run(cases_dir: Path, cache_root: str | None) -> list[dict]:
+def run(cases_dir: Path, cache: str | None) -> list[dict]:
     out = []
-    dirs = sorted(cases_dir.glob("seed_*/cases.json"), key=lambda p: int(p.parent.name.split("_")[1]))
-    if not dirs and (cases_dir / "cases.json").exists():
+    runs = load(cases_dir)
+    if not runs and (cases_dir / "cases.json").exists():
         raise SystemExit(f"{cases_dir}: a single-seed run; give the --seeds run's directory (seed_<S>/cases.json)")
-    for f in dirs:
-        seed = int(f.parent.name.split("_")[1])
-        cache = Path(cache_root.replace("{seed}", str(seed))) if cache_root else Path(f"/tmp/pf_cache/{seed}")
-        cache.mkdir(parents=True, exist_ok=True)
-        rows = [r for r in json.loads(f.read_text()) if r["kind"] != "bare" and r.get("fail")]
-        for r in rows:
-            out.append(stage_of_case(seed, r, cache))
+    for seed in sorted(runs):
+        rows = [r for r in runs[seed] if r["kind"] != "bare" and r.get("fail")]
+        renders = pf.cache_dir(cache, seed, several=True)
+        out += [stage_of_case(seed, r, renders) for r in rows]
         print(f"seed {seed}: {len(rows)} failing weed frames", file=sys.stderr, flush=True)
     return out
 
@@ -137,7 +137,8 @@ def table(rows: list[dict]) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", required=True, type=Path, help="a perception_failures.py --seeds output directory")
-    ap.add_argument("--cache", default=None, help="rendered views ('{seed}' replaced; default /tmp/pf_cache/<seed>)")
+    ap.add_argument("--cache", default=None, help="rendered views, as perception_failures.py --seeds takes it "
+                    "('{seed}' replaced, else one subdirectory per seed; default /tmp/pf_cache/<seed>)")
     ap.add_argument("--list", action="store_true", help="one line per failing frame")
     ap.add_argument("--json", type=Path, help="write the per-frame stages here")
     a = ap.parse_args(argv)

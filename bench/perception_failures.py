@@ -181,19 +181,27 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
+def cache_dir(cache: str | None, seed: int, several: bool) -> Path:
+    """The render cache of `seed` (made if missing): /tmp/pf_cache/<seed> by default, `cache` with
+    '{seed}' replaced, or, for several seeds sharing a `cache` without '{seed}', its subdirectory
+    <seed> (views are named by case index only)."""
+    if cache is None:
+        d = Path(f"/tmp/pf_cache/{seed}")
+    elif "{seed}" in cache or not several:
+        d = Path(cache.format(seed=seed))
+    else:
+        d = Path(cache) / str(seed)
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
 def _run_seed(a, seed: int, out: Path) -> list[dict]:
     """The bench cases of one seed evaluated (rendered views cached), their rows written to
     out/cases.json and failing frames saved as PNGs there (per --save)."""
     out.mkdir(parents=True, exist_ok=True)
     for f in out.glob("*.png"):
         f.unlink()
-    if a.cache is None:
-        cache = Path(f"/tmp/pf_cache/{seed}")
-    elif "{seed}" in a.cache or a.seeds is None:
-        cache = Path(a.cache.format(seed=seed))
-    else:  # one directory for several seeds: each its own (views are named by case index only)
-        cache = Path(a.cache) / str(seed)
-    cache.mkdir(parents=True, exist_ok=True)
+    cache = cache_dir(a.cache, seed, several=a.seeds is not None)
     bare_idx = bare_cases(seed, a.scenes, a.bare_share)
     idx = range(a.scenes) if a.only is None else [int(s) for s in a.only.split(",")]
     save = None if a.save == "none" else a.save

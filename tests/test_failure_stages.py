@@ -87,9 +87,20 @@ def test_cli_reruns_the_failing_rows(tmp_path):
     assert out.returncode == 0, out.stderr
     got = json.loads((tmp_path / "s.json").read_text())
     assert [(r["i"], r["stage"]) for r in got] == [(0, "right_now")]
+    assert (tmp_path / "cache" / "0" / "00000.png").exists()  # a shared --cache: one subdirectory per seed
     assert "seed 0 case 0 rosette: right_now" in out.stdout
     all_row = next(line for line in out.stdout.splitlines() if line.startswith("all "))
     assert all_row.split()[1:] == ["0", "0", "0", "0", "0", "1", "1"]  # the stages in STAGES order, then all
     none = subprocess.run([sys.executable, str(ROOT / "bench" / "perception_failure_stages.py"), "--cases",
                            str(tmp_path / "missing")], capture_output=True, text=True, timeout=60)
     assert none.returncode == 2 and "not a directory" in none.stderr
+
+
+def test_cache_dir_as_perception_failures_takes_it(tmp_path):
+    import perception_failures as pf
+
+    shared = str(tmp_path / "views")
+    assert pf.cache_dir(shared, 3, several=True) == tmp_path / "views" / "3"  # seeds' views named alike: apart
+    assert pf.cache_dir(shared, 3, several=False) == tmp_path / "views"
+    assert pf.cache_dir(shared + "_{seed}", 4, several=True) == tmp_path / "views_4"
+    assert (tmp_path / "views" / "3").is_dir() and (tmp_path / "views_4").is_dir()
