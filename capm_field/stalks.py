@@ -79,15 +79,16 @@ def has_leaf_clusters(plant: np.ndarray) -> bool:
 BRIDGE_RATIO = 2.0  # the leaves on a lone stalk's centre side: ≥ this × those on its other side
 
 
-def _bridge_end(bridges: list, lv: np.ndarray) -> np.ndarray | None:
+def _bridge_end(bridges: list, lv: np.ndarray) -> tuple[np.ndarray | None, bool]:
     """Centre from one lone stalk running between two leaf clusters (no second stalk to meet):
     a stalk carries one leaf away from the centre, where the rest of the plant's leaves sit, so
     the centre is the end on whose side the leaves are (all clusters but the one at the other
     end: ≥ BRIDGE_RATIO × the other side's; a stalk may start under those leaves, so this is its
-    visible end). `bridges`: (end 0, end 1, length / width) of pieces whose both ends are near
+    visible end). Failing that, the end by how deep each lies in its cluster (`CARRIED_END`):
+    (end, True). `bridges`: (end 0, end 1, length / width) of pieces whose both ends are near
     leaves; stalks between different pairs of clusters: None."""
     if not bridges:
-        return None
+        return None, False
     # each pixel's nearest leaf cluster (`lv`'s connected parts), and each cluster's area
     _, near = cv2.distanceTransformWithLabels(1 - lv, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_CCOMP)
     area = np.bincount(near[lv > 0])
@@ -95,15 +96,38 @@ def _bridge_end(bridges: list, lv: np.ndarray) -> np.ndarray | None:
     ends = [b for b in ends if b[2] != b[3]]
     # (one stalk may come as several pieces: neighbouring direction bands, parallel strips)
     if not ends or len({frozenset((b[2], b[3])) for b in ends}) > 1:
-        return None
+        return None, False
     e0, e1, k0, k1, _ = max(ends, key=lambda b: b[4])  # the most line-like piece
     total = int(area.sum())
     side0, side1 = total - int(area[k1]), total - int(area[k0])
     if side0 >= BRIDGE_RATIO * side1:
-        return e0
+        return e0, False
     if side1 >= BRIDGE_RATIO * side0:
-        return e1
-    return None
+        return e1, False
+    if not CARRIED_END:
+        return None, False
+    # neither side holds most leaves: a stalk enters the leaf it carries at that leaf's middle
+    # (a trefoil's hub), and only touches the other cluster's rim on its centre end
+    ly, lx = np.nonzero(lv)
+    lab = near[ly, lx]
+    cx = np.bincount(lab, weights=lx, minlength=area.size) / np.maximum(area, 1)
+    cy = np.bincount(lab, weights=ly, minlength=area.size) / np.maximum(area, 1)
+    r0 = math.hypot(e0[0] - cx[k0], e0[1] - cy[k0]) / math.sqrt(area[k0] / math.pi)
+    r1 = math.hypot(e1[0] - cx[k1], e1[1] - cy[k1]) / math.sqrt(area[k1] / math.pi)
+    if r1 <= CARRIED_DEEP and r0 >= CARRIED_RATIO * r1:
+        return e0, True
+    if r0 <= CARRIED_DEEP and r1 >= CARRIED_RATIO * r0:
+        return e1, True
+    return None, False
+
+
+CARRIED_END = True  # (session 73) when neither side holds most leaves, the end told by the leaf the stalk enters:
+# the carried end lies ≤ CARRIED_DEEP equivalent radii from its cluster's centroid (a trefoil's petiole enters
+# between its side leaflets, at the hub), the centre end ≥ CARRIED_RATIO × as far out in its own (it touches a
+# leaflet's rim). Used only for compound leaves, after the finer stalk grid (`centre_cascade`). Bench seeds 0–11:
+# clovers 23.9 → 4.4 and 4.9 → 3.7 mm, nothing else moved; seeds 30–33: a clover 36.8 → 13.1 mm (wrong 32 → 31)
+CARRIED_RATIO = 1.5
+CARRIED_DEEP = 0.9  # (two round leaves touched at their rims, both ends ≥ 1 radius out: no answer)
 
 
 def _at(img: np.ndarray, e: np.ndarray):
@@ -113,9 +137,11 @@ def _at(img: np.ndarray, e: np.ndarray):
 
 
 def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
-                 plant: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+                 plant: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, bool]:
     """(where ≥ 2 stalks meet, the centre end of a lone stalk between two leaf clusters
-    (`_bridge_end`, only when no meeting)), in grid pixels; None for either not found.
+    (`_bridge_end`, only when no meeting), whether that end was told by the leaf the stalk
+    enters (`CARRIED_END`) rather than by where the leaves are), in grid pixels; None for
+    either not found.
 
     grey: float grey image on the grid, reaching ~MARGIN × the plant's size round it; index:
     the vegetation index there (a green stalk on a soil of its brightness); leaves: every
@@ -126,7 +152,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     within the hull of the leaves (or anywhere there if ≥ FAN_STALKS orientations meet).
     """
     if not has_leaf_clusters(plant):
-        return None, None
+        return None, None, False
     ys, xs = np.nonzero(plant)
     size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
     disc = _disc(size)
@@ -140,7 +166,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     off_leaf = cv2.distanceTransform(1 - lv, cv2.DIST_L2, 3)
     far = off_leaf > 0.25 * size  # soil: the reference for the line strengths
     if np.count_nonzero(far) < 50:
-        return None, None
+        return None, None, False
     # lines in the grey image and in the index, each in units of its own soil texture
     strength, idx, on, own = None, None, None, None
     for img in (grey, index):
@@ -212,9 +238,9 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
                     u = (free_end - leaf_end) / max(np.linalg.norm(free_end - leaf_end), 1e-9)
                     segs.append(((leaf_end + free_end) / 2, u, Lp / 2, Lp))
     X = meeting_point(segs, max(1.5, TOL * size), REACH * size, directed=True) if len(segs) >= 2 else None
-    lone = _bridge_end(bridges, lv) if X is None else None
+    lone, carried = _bridge_end(bridges, lv) if X is None else (None, False)
     if X is None and lone is None:
-        return None, None  # (most calls: no plausibility maps needed)
+        return None, None, False  # (most calls: no plausibility maps needed)
     off_plant = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3)
     ly, lx = np.nonzero(lv)
     hull = cv2.convexHull(np.c_[lx, ly].astype(np.float32))
@@ -232,7 +258,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
         return P
 
     fan = X is not None and _directions(segs, X, max(1.5, TOL * size), REACH * size) >= FAN_STALKS
-    return plausible(X, fan), plausible(lone)
+    return plausible(X, fan), plausible(lone), carried
 
 
 FAN_STALKS = 3  # stalks of ≥ this many orientations (≥ FAN_APART apart) meeting at one point: a centre even

@@ -1583,7 +1583,7 @@ def test_lone_stalk_centre_is_its_end_at_the_rest_of_the_plant() -> None:
 
     mass = (((190, 190), 25), ((215, 170), 20), ((210, 220), 18))
     g, lv = scene(mass, 12)
-    meet, lone = stalk_points(g, np.zeros_like(g), lv, lv)
+    meet, lone, _ = stalk_points(g, np.zeros_like(g), lv, lv)
     assert meet is None and lone is not None and math.hypot(lone[0] - 172, lone[1] - 172) < 4, lone
     g, lv = scene((((190, 190), 14),), 14)
     assert stalk_points(g, np.zeros_like(g), lv, lv)[1] is None
@@ -1593,6 +1593,45 @@ def test_lone_stalk_centre_is_its_end_at_the_rest_of_the_plant() -> None:
     # its cluster outweighs the one the stalk reaches, not the rest of the plant: no answer
     g, lv = scene((((186, 186), 12), ((210, 160), 12), ((214, 214), 12)), 22)
     assert stalk_points(g, np.zeros_like(g), lv, lv)[1] is None
+
+
+def trefoil(lv: np.ndarray, hub: tuple, heading: float, r: int = 10, d: int = 11) -> None:
+    """Three round leaflets round a hub: the middle one along `heading`, the side ones at ±2 rad
+    (as the bench's clovers are drawn), so the petiole enters between the side ones, at the hub."""
+    for da in (-2.0, 0.0, 2.0):
+        a = heading + da
+        cv2.circle(lv, (int(round(hub[0] + d * math.cos(a))), int(round(hub[1] + d * math.sin(a)))), r, 1, -1)
+
+
+@pytest.mark.parametrize("carried_first", [True, False])
+def test_lone_stalk_between_two_trefoils_ends_where_it_only_touches(monkeypatch, carried_first: bool) -> None:
+    """One stalk between two trefoils of equal size (no side holds most leaves): it enters the
+    trefoil it carries at its hub and only touches the other's rim, where the centre is (bench seed
+    31 case 231, a clover: 36.8 → 13.1 mm). The end is told by how deep in its cluster it lies, so
+    swapping which trefoil the stalk enters swaps the answer; with `stalks.CARRIED_END` off there is
+    none, and the answer is flagged as this rule's (the cascade asks the finer stalk grid first)."""
+    from capm_field import stalks
+
+    rng = np.random.default_rng(7)
+    g = (0.5 + 0.02 * rng.standard_normal((320, 320))).astype(np.float32)
+    lv = np.zeros((320, 320), np.uint8)
+    a, b = np.array([100.0, 110.0]), np.array([210.0, 190.0])
+    u = (b - a) / np.linalg.norm(b - a)
+    if carried_first:  # the stalk carries trefoil a: its middle leaflet points away from b
+        trefoil(lv, tuple(a), math.atan2(-u[1], -u[0]))
+        trefoil(lv, tuple(b + 12 * u), math.atan2(u[1], u[0]) + 0.9)  # b's leaflet rim faces the stalk
+        start, end = a, b - 9 * u
+    else:
+        trefoil(lv, tuple(b), math.atan2(u[1], u[0]))
+        trefoil(lv, tuple(a - 12 * u), math.atan2(-u[1], -u[0]) + 0.9)
+        start, end = b, a + 9 * u
+    cv2.line(g, tuple(int(round(v)) for v in start), tuple(int(round(v)) for v in end), 0.3, 1, cv2.LINE_AA)
+    leaves = lv > 0
+    meet, lone, carried = stalks.stalk_points(g, np.zeros_like(g), leaves, leaves)
+    assert meet is None and lone is not None and carried, (meet, lone, carried)
+    assert np.linalg.norm(lone - end) < 6, (lone, end)
+    monkeypatch.setattr(stalks, "CARRIED_END", False)
+    assert stalks.stalk_points(g, np.zeros_like(g), leaves, leaves)[1] is None
 
 
 def test_blue_green_leaves_are_plants() -> None:
