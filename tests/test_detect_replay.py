@@ -157,12 +157,27 @@ def test_camera_pose_needs_a_chain_from_field_to_camera():
         detect_replay.camera_pose({"camera": ("body", eye), "body": ("camera", eye)})  # a loop
 
 
+def _cut_after_first_detection(log: Path) -> int:
+    """A byte offset inside the log that keeps the first /detection whole and cuts the next chunk in
+    two. Chunks close on a wall-clock timer, so a fixed fraction of the file (once 60 %) falls
+    before or after the first detection's chunk depending on the machine's load."""
+    from mcap.reader import make_reader
+
+    with open(log, "rb") as f:
+        reader = make_reader(f)
+        first = next(m.log_time for _, ch, m in reader.iter_messages(topics=["/detection"], log_time_order=True))
+        chunks = sorted(reader.get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    i = next(i for i, c in enumerate(chunks) if c.message_start_time <= first <= c.message_end_time)
+    end = chunks[i].chunk_start_offset + chunks[i].chunk_length
+    return chunks[i + 1].chunk_start_offset + chunks[i + 1].chunk_length // 2 if i + 1 < len(chunks) else end + 9
+
+
 def test_a_truncated_log_is_said_to_be_one(runs, capsys, tmp_path):
     """A log cut short (a crash, a copy stopped half-way) replays what it holds, and says it is cut:
     the figures alone read as a whole run (found by a fuzzing sweep)."""
     whole = (runs["jpeg"] / "run.mcap").read_bytes()
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(whole[: int(len(whole) * 0.6)])
+    cut.write_bytes(whole[: _cut_after_first_detection(runs["jpeg"] / "run.mcap")])
     rc, doc, out, err = _replay(capsys, cut, tmp_path, "--quiet")
     assert rc == 0 and "is truncated (crash?)" in err
     assert doc["log_notes"] and "truncated" in doc["log_notes"][0]
