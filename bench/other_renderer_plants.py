@@ -651,14 +651,14 @@ def table(rows: dict[str, list[dict]]) -> None:
         print(f"  {name:9s} reasons: {dict(reasons.most_common())}  methods: {dict(methods.most_common())}")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=40)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--save-fails", metavar="DIR")
     ap.add_argument("--roi", action="store_true", help="give the detector an ellipse around the true centre")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
     for k in kinds:
         if k not in PLANTS:

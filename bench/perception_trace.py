@@ -90,12 +90,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenes", type=int, default=300)
     ap.add_argument("--bare-share", type=float, default=0.15)
-    ap.add_argument("--cache", default=None, help="rendered views (default /tmp/pf_cache/<seed>)")
+    ap.add_argument("--cache", default=None, help="rendered views (default /tmp/pf_cache/<seed>; '{seed}' replaced)")
     ap.add_argument("--all-candidates", action="store_true")
     a = ap.parse_args(argv)
     install()
-    cache = Path(a.cache) if a.cache else Path(f"/tmp/pf_cache/{a.seed}")
-    cache.mkdir(parents=True, exist_ok=True)
+    cache = pf.cache_dir(a.cache, a.seed, several=False)
     for i in a.cases:
         trace_case(a.seed, i, a.scenes, a.bare_share, cache, a.all_candidates)
     return 0

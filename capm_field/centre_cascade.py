@@ -42,7 +42,7 @@ STALK_PEAKS = 2  # leaf-axis vote peaks (`axis_votes.vote_peaks`) from which sta
 
 def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant: np.ndarray, gains: np.ndarray,
                  lab_index: bool, thr: float, soil: float,
-                 max_px: int = stalks.MAX_PX, cap: bool = False) -> tuple[np.ndarray | None, np.ndarray | None, bool]:
+                 max_px: int = stalks.MAX_PX, cap: bool = False) -> stalks.StalkPoints:
     """`stalks.stalk_points` (stalks' meeting point, lone stalk's centre end, whether that end is
     `stalks.CARRIED_END`'s) for a plant on the
     stage-2 grid (grid pixel (j, i) ↔ image (X0 + (j + 0.5)·kx − 0.5, Y0 + (i + 0.5)·ky − 0.5)).
@@ -52,10 +52,10 @@ def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant:
     leaves that stage 1 grouped); answers in stage-2 grid pixels. `cap`: an over-exposed soil's
     clipped pixels are capped at the soil level (`vegetation.cap_clipped`)."""
     if not stalks.has_leaf_clusters(plant):  # (cheap, on the stage-2 grid: most plants stop here)
-        return None, None, False
+        return stalks.NONE
     win = plant_window(img, X0, Y0, kx, ky, plant.shape, max_px, stalks.MARGIN)
     if win is None:
-        return None, None, False
+        return stalks.NONE
     region = win.region
     grey = cv2.cvtColor(region, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
     vi = vegetation_index(region, gains=gains, lab=lab_index).astype(np.float32)
@@ -64,7 +64,8 @@ def stalk_centre(img: np.ndarray, X0: int, Y0: int, kx: float, ky: float, plant:
     big = win.mask(plant)
     leaves = hysteresis(vi, thr, soil, np.ones(vi.shape, bool)) | big
     meet, lone, carried = stalks.stalk_points(grey, vi, leaves, big)
-    return (None if meet is None else win.to_stage2(meet)), (None if lone is None else win.to_stage2(lone)), carried
+    return stalks.StalkPoints(None if meet is None else win.to_stage2(meet), None if lone is None else win.to_stage2(lone),
+                              carried)
 
 
 def separate_parts(plant: np.ndarray) -> int:

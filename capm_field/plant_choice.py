@@ -18,6 +18,7 @@ import numpy as np
 
 from .candidates import (LC_RING, STRAW_ELONG, STRAW_ELONG_FULL, STRAW_RAW, candidate_features, contrast_band,
                          green_blade, plant_like)
+from . import straw_shape
 from .components import components
 from .detection import Detection
 from .order_stats import elongation, median, percentile
@@ -176,8 +177,10 @@ def choose(img: np.ndarray, win: SearchWindow, vivid: bool = False, debug: dict 
             if g is not None:  # distance from X_w and green area on the ground (in X_w's pixels), not in the image
                 f["d"], f["mass_full"] = g[0], f["mass_full"] * g[1]
             f["score"] = f["mass_full"] * math.exp(-0.5 * (f["d"] / CENTRAL_SIGMA) ** 2) * (0.33 if cut else 1.0)
-            # a straight thin piece at full resolution is straw, not a weed (measured: weeds ≤ 4.5)
-            if f["elong_full"] > STRAW_ELONG_FULL and not green_blade(f):
+            # a straight thin piece at full resolution is straw, not a weed (measured: weeds ≤ 4.5), unless it
+            # narrows to a waist between two lobes (two cotyledons in a line)
+            if f["elong_full"] > STRAW_ELONG_FULL and not green_blade(f) \
+                    and not (WAISTED_PAIR and straw_shape.waisted(xx, yy)):
                 f["score"] = 0.0
             # the TROI holds the weed's centre (the margin is for overhanging leaves only)
             if roi is not None and not roi.contains(cf[None], 1.0)[0]:
@@ -259,6 +262,11 @@ def mask_box(xs: np.ndarray, ys: np.ndarray, to_full) -> tuple[float, float, flo
     return float(fx0), float(fy0), float(fx1), float(fy1)
 
 
+WAISTED_PAIR = True  # the full-resolution straw rule (elongation > STRAW_ELONG_FULL, not a green blade's
+# colour) spares one piece narrowed to a waist between two lobes (`straw_shape.waisted`): two cotyledons in a line,
+# whose petioles meet there; straw is widest in its middle or even. Session 74, bench seeds 0–11: detected 2 998 →
+# 3 000 (two seedlings, 1.8 and 0.8 mm), nothing else moved; seeds 30–37 and 600 fresh bare frames (seeds 40–41,
+# bare share 1.0) unchanged
 CENTRAL_SIGMA = 0.8  # of the ROI radius: how fast the candidate score falls off from the TROI centre
 VIVID_WB = 0.5  # exponent on the soil white balance in the second look: half (a full pull towards a reddish
 # soil turns yellow-green leaves on grey-olive soil orange; none measured 0.4 % fewer detections)

@@ -16,6 +16,7 @@ leaf clusters gives its end on the side of the rest of the plant (`_bridge_end`)
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -136,8 +137,17 @@ def _at(img: np.ndarray, e: np.ndarray):
     return img[min(max(int(round(e[1])), 0), h - 1), min(max(int(round(e[0])), 0), w - 1)]
 
 
-def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
-                 plant: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, bool]:
+class StalkPoints(NamedTuple):
+    """What `stalk_points` found (grid pixels; None: not found)."""
+    meet: np.ndarray | None  # where ≥ 2 stalks meet
+    lone: np.ndarray | None  # a lone stalk's centre end (only when no meeting)
+    carried: bool = False  # that end told by the leaf the stalk enters (`CARRIED_END`), not by where the leaves are
+
+
+NONE = StalkPoints(None, None, False)
+
+
+def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray, plant: np.ndarray) -> StalkPoints:
     """(where ≥ 2 stalks meet, the centre end of a lone stalk between two leaf clusters
     (`_bridge_end`, only when no meeting), whether that end was told by the leaf the stalk
     enters (`CARRIED_END`) rather than by where the leaves are), in grid pixels; None for
@@ -152,7 +162,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     within the hull of the leaves (or anywhere there if ≥ FAN_STALKS orientations meet).
     """
     if not has_leaf_clusters(plant):
-        return None, None, False
+        return NONE
     ys, xs = np.nonzero(plant)
     size = math.hypot(np.ptp(xs) + 1, np.ptp(ys) + 1)
     disc = _disc(size)
@@ -166,7 +176,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     off_leaf = cv2.distanceTransform(1 - lv, cv2.DIST_L2, 3)
     far = off_leaf > 0.25 * size  # soil: the reference for the line strengths
     if np.count_nonzero(far) < 50:
-        return None, None, False
+        return NONE
     # lines in the grey image and in the index, each in units of its own soil texture
     strength, idx, on, own = None, None, None, None
     for img in (grey, index):
@@ -240,7 +250,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
     X = meeting_point(segs, max(1.5, TOL * size), REACH * size, directed=True) if len(segs) >= 2 else None
     lone, carried = _bridge_end(bridges, lv) if X is None else (None, False)
     if X is None and lone is None:
-        return None, None, False  # (most calls: no plausibility maps needed)
+        return NONE  # (most calls: no plausibility maps needed)
     off_plant = cv2.distanceTransform((~plant).astype(np.uint8), cv2.DIST_L2, 3)
     ly, lx = np.nonzero(lv)
     hull = cv2.convexHull(np.c_[lx, ly].astype(np.float32))
@@ -258,7 +268,7 @@ def stalk_points(grey: np.ndarray, index: np.ndarray, leaves: np.ndarray,
         return P
 
     fan = X is not None and _directions(segs, X, max(1.5, TOL * size), REACH * size) >= FAN_STALKS
-    return plausible(X, fan), plausible(lone), carried
+    return StalkPoints(plausible(X, fan), plausible(lone), carried)
 
 
 FAN_STALKS = 3  # stalks of ≥ this many orientations (≥ FAN_APART apart) meeting at one point: a centre even

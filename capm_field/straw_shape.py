@@ -54,6 +54,34 @@ def lone_bar(xs: np.ndarray, ys: np.ndarray) -> bool:
     return float(widths[third:BAR_BINS - third].min()) >= BAR_WAIST * float(widths.max())
 
 
+WAIST_PIECE = 0.95  # `waisted`: the share of the pixels its largest 8-connected piece must hold
+
+
+def waisted(xs: np.ndarray, ys: np.ndarray) -> bool:
+    """True when the pixels (xs, ys) are two lobes joined by a narrow waist along their long axis:
+    one piece (≥ WAIST_PIECE of them 8-connected: not two straws end to end) whose least width in
+    the middle third of BAR_BINS slices is < BAR_WAIST × the greatest width of each outer third
+    (two cotyledons in a line meeting at their petioles). A straw or a lone leaf is widest in its
+    middle, or even along it."""
+    if len(xs) < 3 * BAR_BINS:
+        return False
+    x0, y0 = int(xs.min()), int(ys.min())
+    m = np.zeros((int(ys.max()) - y0 + 1, int(xs.max()) - x0 + 1), np.uint8)
+    m[ys - y0, xs - x0] = 1
+    _, _, st, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if int(st[1:, cv2.CC_STAT_AREA].max()) < WAIST_PIECE * int(m.sum()):
+        return False
+    pts = np.c_[xs, ys].astype(np.float64)
+    d = pts - pts.mean(axis=0)
+    _, vecs = np.linalg.eigh(d.T @ d)
+    t = d @ vecs[:, 1]
+    widths = np.histogram(t, bins=BAR_BINS, range=(float(t.min()), float(t.max()) + 1e-6))[0]
+    third = BAR_BINS // 3
+    waist = float(widths[third:BAR_BINS - third].min())
+    lobes = min(float(widths[:third].max()), float(widths[BAR_BINS - third:].max()))
+    return 0 < waist < BAR_WAIST * lobes
+
+
 CROSS_COVER = 0.97  # share of the plant's pixels the two bars must hold
 CROSS_SECOND = 0.15  # share of them off the first bar from which a second one is looked for
 CROSS_ANGLE = math.radians(20.0)  # least angle between them

@@ -94,6 +94,50 @@ def test_a_seedling_whose_cotyledons_lie_in_a_line_is_found() -> None:
     assert float(np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre)) < 0.005
 
 
+def _waisted(mask: np.ndarray) -> bool:
+    ys, xs = np.nonzero(mask)
+    return straw_shape.waisted(xs, ys)
+
+
+@pytest.mark.parametrize("angle", [0.0, 35.0, 90.0, 150.0])
+def test_two_cotyledons_are_waisted_a_straw_a_leaf_or_two_straws_end_to_end_are_not(angle: float) -> None:
+    """`waisted`, the stage-1 exception to the full-resolution straw rule (`plant_choice.WAISTED_PAIR`):
+    two lobes joined by a narrow neck, at any angle; not a lens (straw), an even bar, one ellipse
+    (a dead leaf) or two lenses in a line with a gap between them (straw broken in two)."""
+    rot = cv2.getRotationMatrix2D((55.0, 55.0), angle, 1.0)
+
+    def turned(draw) -> np.ndarray:
+        m = np.zeros((110, 110), np.uint8)
+        draw(m)
+        return cv2.warpAffine(m, rot, (110, 110), flags=cv2.INTER_NEAREST).astype(bool)
+
+    def pair(m, neck: int) -> None:
+        cv2.ellipse(m, (32, 55), (20, 8), 0, 0, 360, 1, -1)
+        cv2.ellipse(m, (78, 55), (20, 8), 0, 0, 360, 1, -1)
+        if neck:
+            m[55 - neck // 2:55 - neck // 2 + neck, 45:66] = 1
+
+    assert _waisted(turned(lambda m: pair(m, 3)))
+    assert not _waisted(turned(lambda m: pair(m, 0)))  # a gap: two pieces, not one plant's waist
+    assert not _waisted(turned(lambda m: _lens(m, (12, 55), (98, 55), 13)))
+    assert not _waisted(turned(lambda m: cv2.rectangle(m, (12, 50), (98, 60), 1, -1)))
+    assert not _waisted(turned(lambda m: cv2.ellipse(m, (55, 55), (44, 9), 0, 0, 360, 1, -1)))
+    assert not _waisted(np.zeros((20, 20), bool))
+
+
+def test_a_seedling_taken_for_straw_at_full_resolution_is_found(monkeypatch) -> None:
+    """Bench seed 10 case 105: two dark cotyledons in a line, elongation > STRAW_ELONG_FULL at full
+    resolution and not coloured as a green blade, so stage 1 gave it no score (no_plant) until
+    `WAISTED_PAIR` (session 74)."""
+    from capm_field import plant_choice
+
+    case, det = _detect(10, 105, False)
+    assert case.kind == "seedling" and det.reason is None
+    assert float(np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre)) < 0.005
+    monkeypatch.setattr(plant_choice, "WAISTED_PAIR", False)
+    assert _detect(10, 105, False)[1].reason == "no_plant"
+
+
 def _crossed(mask: np.ndarray) -> bool:
     ys, xs = np.nonzero(mask)
     return straw_shape.crossed_bars(xs, ys)
