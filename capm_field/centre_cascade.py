@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-from . import axis_votes, compound_leaf, fan_apex, hub_petioles, leaf_axes, plant_centre, stalks, star_centre, straw_shape, tree_median
+from . import axis_votes, compound_leaf, fan_apex, hub_petioles, leaf_axes, midribs, plant_centre, stalks, star_centre, straw_shape, tree_median
 from .components import components
 from .plant_window import plant_window
 from .roi import Roi, roi_mask
@@ -74,6 +74,11 @@ def separate_parts(plant: np.ndarray) -> int:
     return int(np.count_nonzero(stats[1:, cv2.CC_STAT_AREA] >= 0.02 * stats[1:, cv2.CC_STAT_AREA].sum()))
 
 
+MIDRIBS = True  # `midribs.midrib_centre` replaces a fallback's answer (tip axes, geometric or tree median) for a
+# plant not of compound leaves (session 74). Bench seeds 0-11: 70 answers better, 22 worse by > 1 mm (rosettes; worst
+# 2.0 -> 9.1 mm), wrong 50 -> 49 (a rosette 47.6 -> 1.9 mm); seeds 30-33 29 / 3, 34-37 33 / 4, wrong unchanged.
+# Field-photo weeds seeds 3-4 (fresh; ± ROI, 640 frames): 53 better, 1 worse by > 0.02 S (plantain, thistle, fat-hen,
+# dandelion); other renderer seeds 0-2 4 / 2; photo-like seeds 3-6 1 / 1. ~0.5-0.7 ms a frame
 WIDE_FAN_ROUND = 0.10  # the fan test for round plants (THIN_ROUND ≤ r < this) before the medians (session 50).
 # Bench seeds 0–7 wrong 36 → 34, seeds 8–11 28 → 27: grass 34.9 → 4.6, 30.6 → 6.5 mm, rosettes 66.8 → 5.3,
 # 13.4 → 1.7, 17.4 → 2.0 mm; four seedlings worse (1.4–13.6 → 8.6–16.1 mm). With the fine votes (step 1's):
@@ -288,6 +293,13 @@ def centre_fullres(img, box, thr: float, soil: float, gains: np.ndarray, roi: Ro
         uv, ntips, sharp = tree_median.tree_median(plant, vi, None, votes if fine else axis_votes.axis_votes(vi, plant, size, scale))
         if uv is None:
             return None, 0, 0.0
+    if MIDRIBS and not compound and method in ("tip_axes", "geometric_median", "tree_median"):
+        # a fallback's answer for broad leaves: where the lines inside the plant (midribs, veins,
+        # petioles) converge, when they agree all round (`midribs`, session 74)
+        full = cv2.resize(plant.astype(np.uint8), (crop.shape[1], crop.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+        got = midribs.midrib_centre(cv2.cvtColor(crop, cv2.COLOR_BGR2GRAY), full)
+        if got is not None:
+            uv, method = np.array([(got[0][0] + 0.5) / kx - 0.5, (got[0][1] + 0.5) / ky - 0.5]), "midribs"
     if STAR_CHECK:
         # an answer from which most of a star-shaped plant is out of sight (a leaf's midrib taken
         # for a petiole, a median pulled onto one leaf): the point the plant radiates from

@@ -192,14 +192,18 @@ def _bench_weed(seed: int, index: int, kind: str = "clover"):
 def test_two_leaf_rosette_in_a_line_is_no_straw(monkeypatch) -> None:
     """Bench seed 4 case 40: a dark-green rosette of two leaves in a line (elongation 5.9 at full
     resolution, past the straw rule's 5.0) with min(g_raw, gr) 0.05: above bench straw (≤ 0.044),
-    so `green_blade` spares it. Found within 10 mm; at the old BLADE_GREEN 0.06, "no plant"."""
+    so `green_blade` spares it. Found within 10 mm; at the old BLADE_GREEN 0.06, "no plant" unless its waist
+    between the two leaves spares it too (`plant_choice.WAISTED_PAIR`, session 74)."""
     import capm_field.candidates as cand
+    import capm_field.plant_choice as choice
 
     case, img, roi = _bench_frame(4, 40, "rosette")
     det = detect_centre(img, roi)
     assert det.reason is None, det
     assert np.linalg.norm(ground_centre(CAM, case.T, det) - case.scene.weeds[0].centre) < 0.010
     monkeypatch.setattr(cand, "BLADE_GREEN", 0.06)
+    assert detect_centre(img, roi).reason is None
+    monkeypatch.setattr(choice, "WAISTED_PAIR", False)
     assert detect_centre(img, roi).reason == "no_plant"
 
 
