@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from . import straw_shape
 from .candidates import (LC_RING, STRAW_ELONG, STRAW_ELONG_FULL, STRAW_RAW, candidate_features, contrast_band,
                          green_blade, plant_like)
-from . import straw_shape
 from .components import components
 from .detection import Detection
 from .order_stats import elongation, median, percentile

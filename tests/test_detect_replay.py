@@ -158,18 +158,25 @@ def test_camera_pose_needs_a_chain_from_field_to_camera():
 
 
 def _cut_after_first_detection(log: Path) -> int:
-    """A byte offset inside the log that keeps the first /detection whole and cuts the next chunk in
-    two. Chunks close on a wall-clock timer, so a fixed fraction of the file (once 60 %) falls
-    before or after the first detection's chunk depending on the machine's load."""
+    """A byte offset inside the log that keeps the chunk holding the first /detection whole and cuts
+    the next chunk in two. Chunks close on a wall-clock timer, so a fixed fraction of the file (once
+    60 %) falls before or after that chunk depending on the machine's load. The chunk is found by its
+    contents, not its time range: an image, its calibration and its detection carry one stamp, and a
+    flush between them gave two chunks that range over it (the flaky failure of sessions 73–74)."""
     from mcap.reader import make_reader
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
 
     with open(log, "rb") as f:
-        reader = make_reader(f)
-        first = next(m.log_time for _, ch, m in reader.iter_messages(topics=["/detection"], log_time_order=True))
-        chunks = sorted(reader.get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
-    i = next(i for i, c in enumerate(chunks) if c.message_start_time <= first <= c.message_end_time)
-    end = chunks[i].chunk_start_offset + chunks[i].chunk_length
-    return chunks[i + 1].chunk_start_offset + chunks[i + 1].chunk_length // 2 if i + 1 < len(chunks) else end + 9
+        summary = make_reader(f).get_summary()
+        f.seek(0)
+        chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+    det = {c.id for c in summary.channels.values() if c.topic == "/detection"}
+    index = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    assert len(index) == len(chunks)
+    i = next(k for k, ch in enumerate(chunks) if any(isinstance(r, Message) and r.channel_id in det for r in breakup_chunk(ch)))
+    end = index[i].chunk_start_offset + index[i].chunk_length
+    return index[i + 1].chunk_start_offset + index[i + 1].chunk_length // 2 if i + 1 < len(index) else end + 9
 
 
 def test_a_truncated_log_is_said_to_be_one(runs, capsys, tmp_path):
