@@ -62,3 +62,23 @@ def test_latency_and_trace_run_on_rendered_cases(tmp_path):
     assert tr.returncode == 0, tr.stderr
     heads = [ln for ln in tr.stdout.splitlines() if ln.startswith("== seed 0 case ")]
     assert [h.split()[4].rstrip(":") for h in heads] == ["0", "1", "2"]
+
+
+def test_heldout_pairs_makes_bench_frames_and_scores_them(capsys):
+    import numpy as np
+    import pytest
+
+    hp = _module("heldout_pairs")
+    (i, kind, img, rois, truth, S), = list(hp.frames("photo_plants", 3, 1))
+    assert (i, kind) == (0, "dandelion") and len(rois) == 2 and rois[0] is None and truth is not None and S > 0
+    assert hp.error(img, rois[1], truth, S) < 0.2  # the bench's own first dandelion, found
+    blank = np.full((240, 320, 3), 90, np.uint8)
+    assert hp.error(blank, None, None, 1.0) == 0.0  # bare soil: no plant is right
+    assert hp.error(blank, None, (10.0, 10.0), 50.0) == float("inf")  # a weed frame without an answer
+    stones = hp.frames("stones_on_soils", 0, 0)
+    assert next(stones)[4] is None
+    for bad in ("capm_field.centre_cascade.NO_SUCH=1", "capm_field.centre_cascade.MIDRIBS=notaliteral",
+                "no_such_module.X=1"):
+        with pytest.raises(SystemExit):
+            hp.main([bad])
+    capsys.readouterr()
