@@ -28,6 +28,7 @@ tell a mallow's leaf from a rosette's crown (its ratio to the first 0.32–0.73 
 from __future__ import annotations
 
 import math
+import threading
 
 import cv2
 import numpy as np
@@ -45,21 +46,23 @@ MIN_REACH = 0.16  # × plant size: the supporting segments' far ends lie at leas
 MAX_GAP = math.pi  # ... and round the peak: the widest empty sector between them, seen from it
 MAX_PX = 320  # longest side of the window the segments are found on (a photo's plant is shrunk to it)
 
-_LSD = None
+_LOCAL = threading.local()  # one detector object per thread (detect_centre may run on several)
 
 
 def _lsd():
-    global _LSD
-    if _LSD is None:
-        _LSD = cv2.createLineSegmentDetector()
-    return _LSD
+    if not hasattr(_LOCAL, "lsd"):
+        _LOCAL.lsd = cv2.createLineSegmentDetector()
+    return _LOCAL.lsd
 
 
 def midrib_centre(grey: np.ndarray, plant: np.ndarray) -> tuple[np.ndarray, int, float] | None:
     """(centre (x, y) in `grey`'s pixels, supporting directions, their share of the length), or None.
 
-    grey: uint8 grey image of the plant's window; plant: its mask on the same pixels (bool). None
-    when fewer than 3 segments count or the support is under MIN_DIRS / MIN_SHARE."""
+    grey: grey image of the plant's window (uint8; other types are clipped to 0..255); plant: its
+    mask on the same pixels (bool). None when fewer than 3 segments count, or the segments through
+    the peak fail a test of the module's (directions, share, reach, sector)."""
+    if grey.dtype != np.uint8:
+        grey = np.clip(np.nan_to_num(grey), 0, 255).astype(np.uint8)
     ys, xs = np.nonzero(plant)
     if len(xs) < 50:
         return None

@@ -106,3 +106,16 @@ def test_a_bench_rosette_found_by_its_midribs(monkeypatch) -> None:
     assert case.kind == "rosette" and error_mm() < 5.0
     monkeypatch.setattr(centre_cascade, "MIDRIBS", False)
     assert error_mm() > 30.0
+
+
+def test_a_float_window_and_threads_give_the_same_answer() -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    grey, mask = _rosette(True)
+    want = midribs.midrib_centre(grey, mask)
+    assert want is not None
+    same = midribs.midrib_centre(grey.astype(np.float32), mask)
+    assert same is not None and np.allclose(same[0], want[0])
+    with ThreadPoolExecutor(4) as ex:
+        got = list(ex.map(lambda _: midribs.midrib_centre(grey, mask), range(8)))
+    assert all(g is not None and np.allclose(g[0], want[0]) for g in got)
