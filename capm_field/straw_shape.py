@@ -46,12 +46,17 @@ def lone_bar(xs: np.ndarray, ys: np.ndarray) -> bool:
     long_, short = max(w, h), max(min(w, h), 1.0)
     if long_ / short < BAR_ASPECT or len(xs) < BAR_FILL * long_ * short:
         return False
+    widths = _width_profile(pts)
+    third = BAR_BINS // 3
+    return float(widths[third:BAR_BINS - third].min()) >= BAR_WAIST * float(widths.max())
+
+
+def _width_profile(pts: np.ndarray) -> np.ndarray:
+    """Pixel counts in BAR_BINS equal slices across the long (principal) axis of the points."""
     d = pts - pts.mean(axis=0)
     _, vecs = np.linalg.eigh(d.T @ d)
     t = d @ vecs[:, 1]  # along the long axis
-    widths = np.histogram(t, bins=BAR_BINS, range=(float(t.min()), float(t.max()) + 1e-6))[0]
-    third = BAR_BINS // 3
-    return float(widths[third:BAR_BINS - third].min()) >= BAR_WAIST * float(widths.max())
+    return np.histogram(t, bins=BAR_BINS, range=(float(t.min()), float(t.max()) + 1e-6))[0]
 
 
 WAIST_PIECE = 0.95  # `waisted`: the share of the pixels its largest 8-connected piece must hold
@@ -71,11 +76,7 @@ def waisted(xs: np.ndarray, ys: np.ndarray) -> bool:
     _, _, st, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if int(st[1:, cv2.CC_STAT_AREA].max()) < WAIST_PIECE * int(m.sum()):
         return False
-    pts = np.c_[xs, ys].astype(np.float64)
-    d = pts - pts.mean(axis=0)
-    _, vecs = np.linalg.eigh(d.T @ d)
-    t = d @ vecs[:, 1]
-    widths = np.histogram(t, bins=BAR_BINS, range=(float(t.min()), float(t.max()) + 1e-6))[0]
+    widths = _width_profile(np.c_[xs, ys].astype(np.float64))
     third = BAR_BINS // 3
     waist = float(widths[third:BAR_BINS - third].min())
     lobes = min(float(widths[:third].max()), float(widths[BAR_BINS - third:].max()))
