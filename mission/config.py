@@ -216,10 +216,16 @@ def hold_fuel(xi_s: float, rate_per_s: float) -> float:
 
 def holds_left(fuel: float, reserve: float, need: float) -> float:
     """How many holds of `need` can still begin from `fuel`, each leaving more than `reserve`
-    (the executive's rule); inf while `need` is unknown (0)."""
+    (the executive's rule); inf while `need` is unknown (0) or so small that the tank's holds
+    overflow a float (a rate of 1e-310/s); 0 for a fuel reading that is not a number."""
     if need <= 0:
         return math.inf
-    return max(0, math.ceil((fuel - reserve) / need) - 1)
+    q = (fuel - reserve) / need
+    if math.isnan(q):
+        return 0
+    if math.isinf(q):
+        return math.inf if q > 0 else 0
+    return max(0, math.ceil(q) - 1)
 
 
 class IgniterSpec(_Strict):

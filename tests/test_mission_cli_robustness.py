@@ -165,6 +165,24 @@ def test_fuel_settings_that_never_fire_are_refused(tmp_path, capsys):
     assert rc == 2 and "a full tank cannot begin one hold" in _one_line(err), err
 
 
+
+def test_a_vanishing_fuel_rate_covers_every_target(tmp_path, capsys):
+    """A rate so small that a tank holds more than a float's worth of holds (1e-310/s: the holds
+    overflow to infinity) is a tank that never runs out, on the hardware and on the bench, not an
+    OverflowError; an unknown fuel reading (NaN) begins no hold."""
+    from mission.config import holds_left
+
+    assert holds_left(1.0, 0.02, 1e-320) == math.inf and holds_left(1.0, 0.02, 0.0) == math.inf
+    assert holds_left(math.nan, 0.02, 0.01) == 0 and holds_left(-math.inf, 0.02, 1e-320) == 0
+    assert holds_left(1.0, 0.02, 0.49) == 1  # (0.98 / 0.49 = 2 holds begin leaving > the reserve: the first)
+    hw = GOOD.replace("drivers: {kind: bench, seed: 3}", "drivers: {kind: hardware}") + "igniter: {fuel_per_s: 1e-310}\n"
+    rc, err = _validate(tmp_path, hw, capsys)
+    assert rc == 0 and "Traceback" not in err, err
+    p = _write(tmp_path, GOOD + "igniter: {fuel_per_s: 1e-320}\n", "bench.yaml")
+    assert cli.main(["run", str(p), "--out", str(tmp_path / "run")]) == 0, capsys.readouterr().err
+    s = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert s["aborted"] is None and [t["flamed"] for t in s["targets"]] == [True], s
+
 # ---- 11: size ---------------------------------------------------------------------------------------------
 def test_large_mission_files_are_refused_fast_and_not_blamed_on_aliases(tmp_path):
     # this thread's CPU time: the process's also counts threads earlier tests of a worker left running
