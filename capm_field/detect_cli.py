@@ -124,7 +124,7 @@ def read_image(path: Path) -> np.ndarray:
         data = np.fromfile(str(path), np.uint8)  # (not cv2.imread: its failures say nothing)
     except OSError as e:
         raise ValueError(f"cannot read it: {e.strerror or e}") from None
-    _check_pixels(data)
+    check_pixels(data)
     try:
         img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     except cv2.error as e:  # e.g. over OpenCV's pixel limit
@@ -134,30 +134,34 @@ def read_image(path: Path) -> np.ndarray:
     return img
 
 
-def _check_pixels(data: np.ndarray) -> None:
+def check_pixels(data: np.ndarray) -> tuple[int, int] | None:
     """Refuse an image of over MAX_PIXELS from its header, before it is decoded: a PNG of a few kB
     can declare 20 000 × 20 000 px (2.5 GB in OpenCV before the detector said bad_image). Pillow
     reads the header (from the first 16 MiB); a format or layout it does not read there is left to
     OpenCV, whose own cap is 2^30 px. Past twice Pillow's MAX_IMAGE_PIXELS (~179 Mpx by default)
     Pillow refuses to open it and its error gives the pixel count; the size read counts where
-    that limit is higher or off."""
+    that limit is higher or off. Returns the (width, height) the header declares, None where
+    Pillow could not read it."""
     import re
     import warnings
 
     from PIL import Image
 
+    size = None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # Pillow's DecompressionBombWarning: the size is checked here
         try:
             with Image.open(io.BytesIO(data[: 16 << 20].tobytes())) as im:
+                size = (im.width, im.height)
                 pixels, dims = im.width * im.height, f"{im.width} × {im.height} px"
         except Image.DecompressionBombError as e:  # over 2× Pillow's own limit (~179 Mpx)
             m = re.search(r"\((\d+) pixels\)", str(e))
             pixels, dims = (int(m[1]), f"{int(m[1]) / 1e6:.0f} Mpx") if m else (MAX_PIXELS + 1, "its size")
         except Exception:  # noqa: BLE001 - not a format Pillow reads, or a header past 16 MiB
-            return
+            return None
     if pixels > MAX_PIXELS:
         raise ValueError(f"{dims}, over the {MAX_PIXELS / 1e6:.0f} Mpx a frame or photo can be")
+    return size
 
 
 def read_mask(path: str) -> np.ndarray:

@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from capm_field.camera import PinholeCamera
 from capm_field.cli_args import path as cli_path
+from capm_field.detect_cli import check_pixels
 from capm_field.detector import detect_centre
 from capm_field.errors import UserError, check_output, terminal_safe, write_output
 
@@ -165,9 +166,28 @@ def _replay_one(r: Replayed, msg: Any, image: bytes | None, cal: Any, tree: dict
     if cal is None or r.target_id not in trois:
         r.error = "no camera calibration" if cal is None else "its TROI is not in the log"
         return
-    img = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_COLOR)
+    if not image:
+        r.error = "its image is empty"
+        return
+    data = np.frombuffer(image, np.uint8)
+    want = (int(cal.width), int(cal.height))  # the ROI is in the calibration's pixels
+    try:  # the size from the header first: a log of a few kB can declare a 30 000 × 30 000 px PNG
+        declared = check_pixels(data)
+        if declared is not None and declared != want:
+            r.error = f"its image is {declared[0]} × {declared[1]} px, the calibration's camera {want[0]} × {want[1]}"
+            return
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    except ValueError as e:
+        r.error = f"its image is not a camera frame: {e}"
+        return
+    except cv2.error as e:  # e.g. over OpenCV's own pixel limit, or out of memory
+        r.error = f"its image does not decode: {str(e).strip().splitlines()[-1][:120]}"
+        return
     if img is None:
         r.error = "its image does not decode"
+        return
+    if (img.shape[1], img.shape[0]) != want:
+        r.error = f"its image is {img.shape[1]} × {img.shape[0]} px, the calibration's camera {want[0]} × {want[1]}"
         return
     try:
         cam = _camera(cal)

@@ -248,3 +248,55 @@ def test_topics_carrying_another_message_are_skipped_with_a_note(capsys, tmp_pat
         err = capsys.readouterr().err
         assert rc == 2 and "1 message(s) skipped, not readable as this run log's" in err, (topic, err)
         assert "stored no images" in err, (topic, err)
+
+
+def _with_images(src: Path, dst: Path, data: bytes, fmt: str) -> Path:
+    """A copy of run log `src` whose every /camera/image carries `data` (as `fmt`)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    from mcap_protobuf.decoder import DecoderFactory
+
+    with src.open("rb") as f, dst.open("wb") as o:
+        r = make_reader(f)
+        w = Writer(o)
+        w.start(profile="", library="test")
+        summary = r.get_summary()
+        schemas = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        channels = {i: w.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata)
+                    for i, c in summary.channels.items()}
+        for schema, ch, m in r.iter_messages(log_time_order=True):
+            payload = m.data
+            if ch.topic == "/camera/image":
+                img = DecoderFactory().decoder_for(ch.message_encoding, schema)(m.data)
+                img.data, img.format = data, fmt
+                payload = img.SerializeToString()
+            w.add_message(channels[ch.id], m.log_time, payload, m.publish_time, m.sequence)
+        w.finish()
+    return dst
+
+
+def test_images_that_are_not_the_cameras_frames_are_said_not_decoded(runs, capsys, tmp_path):
+    """A foreign or damaged log's image: empty (cv2.imdecode asserted: a traceback), a PNG of
+    < 1 MB whose header declares 30 000 × 30 000 px (5.5 GB decoded before the detector saw it), or
+    an image of another size than the calibration's camera (its ROI would be in other pixels):
+    each detection is "not replayed" with the reason, from the header before decoding."""
+    import struct
+    import zlib
+
+    import cv2
+
+    def chunk(tag: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + tag + body + struct.pack(">I", zlib.crc32(tag + body))
+
+    w = h = 30_000
+    rows = zlib.compress(b"\x00" * ((w + 1) * 200), 9)  # (a valid stream need not hold every row: the header decides)
+    bomb = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0)) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
+    small = cv2.imencode(".png", np.full((360, 640, 3), 90, np.uint8))[1].tobytes()
+    for data, expect in ((b"", "its image is empty"),
+                         (bomb, "its image is not a camera frame: 900 Mpx, over the 200 Mpx"),
+                         (small, "its image is 640 × 360 px, the calibration's camera 1280 × 720")):
+        log = _with_images(runs["png"] / "run.mcap", tmp_path / "odd.mcap", data, "png")
+        rc = cli.main(["detect-replay", str(log)])
+        out, err = capsys.readouterr()
+        assert rc == 2 and "none of its 3 detections could be replayed" in err, err
+        assert out.count(f"not replayed: {expect}") == 3, out
