@@ -29,7 +29,7 @@ import numpy as np
 
 from . import cli_args
 from .detector import Detection, Roi, detect_centre
-from .errors import UserError, check_output, shown, write_output
+from .errors import UserError, check_output, same_file, shown, write_output
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".jp2", ".pgm", ".ppm", ".pnm"}
 MAX_FILE_BYTES = 1 << 30  # 1 GiB: far above any camera's frame; a file this big is not a photo
@@ -245,7 +245,9 @@ def main(argv: list[str]) -> int:
         return 0 if e.code == 0 else 2
     if a.roi is not None and a.roi_mask is not None:
         raise UserError("give --roi or --roi-mask, not both")
-    check_output(a.json, "--json")
+    files = image_files(a.images)
+    inputs = [path for _, path, _ in files if path is not None] + ([Path(a.roi_mask)] if a.roi_mask else [])
+    check_output(a.json, "--json", inputs=inputs)
     roi = parse_roi(a.roi) if a.roi is not None else None
     mask = read_mask(a.roi_mask) if a.roi_mask is not None else None
     out_dir = None
@@ -258,10 +260,11 @@ def main(argv: list[str]) -> int:
             raise UserError(f"--annotate {a.annotate}: directory is not writable")
     cv2.setNumThreads(1)  # (the detector's figures are one core's; see docs/perception.md)
     results: list[Result] = []
-    taken: set[str] = set()
+    # an annotated copy never takes an input's name (`x.centre.jpg` among the photos of DIR --annotate DIR)
+    taken: set[str] = {p.name for p in inputs if out_dir is not None and same_file(p.parent, out_dir)}
     interrupted = False
     try:
-        for name, path, err in image_files(a.images):
+        for name, path, err in files:
             if path is None:
                 r, img = Result(name, error=err), None
             else:

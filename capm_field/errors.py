@@ -5,6 +5,7 @@ import os
 import reprlib
 import sys
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -58,15 +59,30 @@ def not_a_file(p: Path, what: str) -> str:
     return f"is a directory, not a {what} file" if p.is_dir() else f"{what} file not found" if not p.exists() else "not a regular file"
 
 
-def check_output(path: str | None, option: str) -> None:
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether `a` and `b` name one file (symlinks, hard links, `..`), without opening either."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one does not exist (yet): compare where the paths lead
+        try:
+            return Path(a).resolve() == Path(b).resolve()
+        except (OSError, RuntimeError):  # a symlink loop
+            return False
+
+
+def check_output(path: str | None, option: str, inputs: Iterable[str | Path] = ()) -> None:
     """Fail fast (before a long bench) if `path` cannot be an output file: its directory must
     exist and take a new file (tried), an existing file must open for writing, and it must not be
-    a directory itself. None: nothing to check."""
+    a directory itself, nor one of the command's `inputs` (files it reads: `--json` naming the
+    run log or a photo would write over it). None: nothing to check."""
     if path is None:
         return
     if not path:  # `--json ""` was taken for "not given" and nothing was written
         raise UserError(f"{option}: empty file name")
     p = Path(path)
+    for q in inputs:
+        if Path(q).exists() and same_file(p, q):
+            raise UserError(f"{option} {path}: is {q}, an input of this command; name another file")
     parent = p.parent
     if p.is_dir():
         raise UserError(f"{option} {path}: is a directory, not a file")

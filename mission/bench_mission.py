@@ -24,6 +24,7 @@ from capm_field.cli_args import path as cli_path
 from capm_field.cli_args import seed as cli_seed
 from capm_field.config import ReachabilityConfig
 from capm_field.errors import UserError, check_output, finite_real, not_a_file, shown, write_output
+from capm_field.keystates import TROI
 from capm_field.planners import PlanningCore, make_planner
 from capm_field.reachability import get_maps
 from capm_field.robot_model import RobotModel
@@ -55,9 +56,16 @@ def draw_in_disc(rng: np.random.Generator, sigma: float, r: float) -> np.ndarray
     return np.array([rho * math.cos(ang), rho * math.sin(ang)])
 
 
-def _read_summary(p: Path, mission: Mission, mission_path: str, ids: list[str]) -> tuple[dict, dict[str, float]]:
+SAME_TROI_M = 1e-6  # a summary's TROI (x, y, r) within this of the mission's is the same target (JSON keeps floats exact)
+
+
+def _read_summary(p: Path, mission: Mission, mission_path: str, trois: list[TROI]) -> tuple[dict, dict[str, float]]:
     """A run's summary.json (the fields used here, checked before the bench runs: a missing or
-    mistyped one crashed after it) and the energy of each target it flamed, by id."""
+    mistyped one crashed after it) and the energy of each target it flamed, by id. Its targets must
+    be this mission's: the same ids, and where the summary records a target's TROI, the same disc
+    (ids are generated T00, T01, … for a mission that names none, so any two such missions of as
+    many targets share them)."""
+    ids = [t.id for t in trois]
     if not p.is_file():
         raise UserError(f"--summary: {not_a_file(p, 'summary')}: {p}")
     try:
@@ -86,6 +94,19 @@ def _read_summary(p: Path, mission: Mission, mission_path: str, ids: list[str]) 
                                    "an id is listed twice" if len(set(theirs)) != len(theirs) else "") if x)
         raise UserError(f"--summary: {p} is from another mission: its {len(theirs)} target(s), of mission {who}, are not "
                         f"the {len(ids)} of this mission {shown(mission.name)} ({mission_path}): {eg}")
+    mine = {t.id: (t.x, t.y, t.r) for t in trois}
+    for i, t in enumerate(s["targets"]):
+        if "troi" not in t:  # (a summary that does not record it: the ids alone)
+            continue
+        disc = t["troi"]
+        if not (isinstance(disc, list) and len(disc) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                                  and math.isfinite(v) for v in disc)):
+            raise UserError(f"{bad} (targets[{i}] ({shown(t['id'])}) troi is not [x, y, r]: {shown(disc)})")
+        if max(abs(a - b) for a, b in zip(disc, mine[t["id"]])) > SAME_TROI_M:
+            x, y, r = mine[t["id"]]
+            raise UserError(f"--summary: {p} is from another field: its target {shown(t['id'])} is the TROI at "
+                            f"({disc[0]:g}, {disc[1]:g}) r {disc[2]:g} m, in this mission {shown(mission.name)} ({mission_path}) "
+                            f"at ({x:g}, {y:g}) r {r:g} m")
     if s.get("name") not in (None, mission.name):  # same targets: a renamed copy of the mission, compared
         print(f"capm-field bench-mission: note: --summary is of mission {shown(s['name'])}, this is {shown(mission.name)} "
               "(same target ids)", file=sys.stderr)
@@ -101,12 +122,12 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--summary", type=cli_path, help="a run's summary.json to compare against")
     ap.add_argument("--json", metavar="FILE")
     a = ap.parse_args(argv)
-    check_output(a.json, "--json")
+    check_output(a.json, "--json", inputs=[a.mission] + ([a.summary] if a.summary else []))
     mission, trois = load_mission(a.mission)
     if mission.planner == "field":  # it plans across targets: no per-target plan to draw MPOIs against
         raise UserError(f"{a.mission}: planner 'field' plans across targets; bench-mission compares the per-target "
                         "planners (a, b, c, cstar): use `capm-field bench-fields` for the field planner")
-    s, flamed = _read_summary(Path(a.summary), mission, a.mission, [t.id for t in trois]) if a.summary else (None, {})
+    s, flamed = _read_summary(Path(a.summary), mission, a.mission, trois) if a.summary else (None, {})
     robot = RobotModel(mission.robot)
     core = PlanningCore(robot, get_maps(robot, mission.task, ReachabilityConfig()), mission.task)
     ordered = order_trois(trois, mission.start.se2().xy, mission.end_pose().xy)

@@ -273,10 +273,10 @@ def main(argv: list[str]) -> int:
         a = ap.parse_args(argv)
     except SystemExit as e:
         return 0 if e.code == 0 else 2
-    check_output(a.json, "--json")
     path = Path(a.run)
     if path.is_dir():
         path = path / "run.mcap"
+    check_output(a.json, "--json", inputs=[path])
     rows, report = replay(path, progress=not a.quiet)
     notes = report.notes(path)  # a truncated or damaged log: said, not hidden behind the figures
     for note in notes:

@@ -35,7 +35,7 @@ from rerun.chunk import McapReader, RrdReader
 
 from capm_field.cli_args import count
 from capm_field.cli_args import path as cli_path
-from capm_field.errors import UserError, check_output, terminal_safe
+from capm_field.errors import UserError, check_output, same_file, terminal_safe
 
 from .runlog import PROTO_TOPICS, SCHEMAS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
@@ -351,19 +351,11 @@ def _check_rrd(part: Path, out: Path) -> None:
         raise UserError(f"--rrd {out}: Rerun did not finish the recording ({why}); nothing written") from None
 
 
-def _same_file(a: Path, b: Path) -> bool:
-    """Whether `a` and `b` name one file (symlinks, hard links, `..`), without opening either."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:  # one does not exist (yet): compare where the paths lead
-        return a.resolve() == b.resolve()
-
-
 def _check_rrd_is_not_the_log(run: str, rrd: Path) -> None:
     """--rrd naming the run log itself (or the run directory's run.mcap) would overwrite the log."""
     p = Path(run)
     log = p / "run.mcap" if p.is_dir() else p
-    if log.exists() and _same_file(log, rrd):  # (a missing log: check_mcap says so)
+    if log.exists() and same_file(log, rrd):  # (a missing log: check_mcap says so)
         raise UserError(f"--rrd {rrd} is the run log being reviewed ({log}); name another file")
 
 

@@ -202,6 +202,29 @@ def test_annotated_copies_mark_the_centre_and_never_overwrite_each_other(tmp_pat
         assert near > 100 and far < 40  # (JPEG re-encoding moves far pixels a little)
 
 
+
+def test_outputs_never_write_over_the_inputs(tmp_path, capsys):
+    """`--json` naming one of the photos (directly, through a symlink, or found in a directory given
+    as input) is refused before any work, the photo kept; `--annotate` into the photos' own
+    directory never takes an input's name (`plant.centre.jpg` there is a photo, not an earlier mark)."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("plant.jpg", "plant.centre.jpg"):
+        shutil.copy(FIX / "rosette_vga.jpg", photos / name)
+    (tmp_path / "link.jpg").symlink_to(photos / "plant.jpg")
+    before = (photos / "plant.jpg").read_bytes()
+    for inputs, out in (([photos / "plant.jpg"], photos / "plant.jpg"), ([photos / "plant.jpg"], tmp_path / "link.jpg"),
+                        ([photos], photos / "plant.centre.jpg"), ([FIX / "seedling.jpg", "--roi-mask", photos / "plant.jpg"],
+                                                                  photos / "plant.jpg")):
+        rc, out_text, err = run(capsys, *map(str, inputs), "--json", str(out))
+        assert rc == 2 and "an input of this command; name another file" in err and out_text == "", err
+    assert (photos / "plant.jpg").read_bytes() == before
+    out_json = tmp_path / "d.json"
+    assert run(capsys, str(photos), "--annotate", str(photos), "--json", str(out_json))[0] == 0
+    rows = json.loads(out_json.read_text())["images"]
+    assert sorted(Path(r["annotated"]).name for r in rows) == ["plant-2.centre.jpg", "plant.centre.centre.jpg"]
+    assert (photos / "plant.centre.jpg").read_bytes() == (FIX / "rosette_vga.jpg").read_bytes()
+
 @pytest.mark.parametrize("args, expect", [
     (["--roi", "1,2"], "give U,V,R (a circle) or U,V,W,H,ANGLE"),
     (["--roi", "10,10,0"], "the radius must be at least 1 px"),

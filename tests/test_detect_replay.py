@@ -300,3 +300,19 @@ def test_images_that_are_not_the_cameras_frames_are_said_not_decoded(runs, capsy
         out, err = capsys.readouterr()
         assert rc == 2 and "none of its 3 detections could be replayed" in err, err
         assert out.count(f"not replayed: {expect}") == 3, out
+
+
+
+def test_json_naming_the_run_log_is_refused_and_the_log_kept(runs, capsys, tmp_path):
+    """`--json run.mcap` (the log itself, or the run directory's) wrote the JSON over the mission
+    log, exit 0; now refused before the replay."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(runs["jpeg"], run)
+    before = (run / "run.mcap").read_bytes()
+    for given in (run, run / "run.mcap"):
+        rc = cli.main(["detect-replay", str(given), "--json", str(run / "." / "run.mcap")])
+        out, err = capsys.readouterr()
+        assert rc == 2 and "an input of this command; name another file" in err and out == "", err
+    assert (run / "run.mcap").read_bytes() == before

@@ -446,6 +446,29 @@ def test_bench_mission_refuses_the_field_planner_and_odd_summaries(tmp_path, cap
         assert rc == 2 and "--summary" in line and len(line) < 400, line
 
 
+def test_bench_mission_refuses_a_summary_of_another_field_and_keeps_its_inputs(tmp_path, capsys):
+    """Two missions that name no ids share T00, T01, …: a summary of a run on another field was
+    compared as if of this one (exit 0). The recorded TROIs decide now; `--json` naming the mission
+    or the summary would write over it."""
+    here, there = (_write(tmp_path, GOOD.replace("x: 1.0, y: 2.0, r: 0.2", xyr), name) for xyr, name in
+                   (("x: 1.0, y: 2.0, r: 0.2", "here.yaml"), ("x: 3.0, y: -1.0, r: 0.45", "there.yaml")))
+    assert cli.main(["run", str(there), "--out", str(tmp_path / "run"), "--quiet"]) == 0, capsys.readouterr().err
+    summary = tmp_path / "run" / "summary.json"
+    rc = cli.main(["bench-mission", str(here), "--trials", "2", "--summary", str(summary)])
+    line = _one_line(capsys.readouterr().err)
+    assert rc == 2 and "is from another field: its target 'T00' is the TROI at (3, -1) r 0.45 m" in line, line
+    assert cli.main(["bench-mission", str(there), "--trials", "2", "--summary", str(summary)]) == 0, capsys.readouterr().err
+    doc = json.loads(summary.read_text())
+    doc["targets"][0]["troi"] = [3.0, "-1", 0.45]
+    odd = _write(tmp_path, json.dumps(doc), "odd.json")
+    assert cli.main(["bench-mission", str(there), "--trials", "2", "--summary", str(odd)]) == 2
+    assert "troi is not [x, y, r]" in _one_line(capsys.readouterr().err)
+    kept = {p: p.read_bytes() for p in (there, summary)}
+    for target in kept:
+        rc = cli.main(["bench-mission", str(there), "--trials", "2", "--summary", str(summary), "--json", str(target)])
+        assert rc == 2 and "an input of this command" in _one_line(capsys.readouterr().err)
+    assert all(p.read_bytes() == b for p, b in kept.items())
+
 def test_truncated_gaussian_draws_stay_in_the_disc_with_the_right_spread():
     """bench-mission's exact draw for σ ≫ r_w (rejection took hours for r_w of 0.1 mm): inside the
     disc, radius uniform in area when σ ≫ r (mean 2/3 r), Rayleigh when σ ≪ r (mean σ√(π/2))."""
