@@ -50,6 +50,37 @@ def test_midribs_meet_at_the_crown_where_the_mask_middle_does_not(turn: float) -
     assert math.dist((xs.mean(), ys.mean()), CROWN) > 8.0  # what the fallbacks start from
 
 
+def _three_leaves(stray: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Three dark leaves from CROWN with pale midribs (three directions); `stray`: two long veins
+    along the first leaf that do not pass the crown (lines that do not agree)."""
+    grey, mask = _soil(2), np.zeros((220, 220), np.uint8)
+    leaves = list(zip(np.radians([20, 140, 260]), (95, 70, 85)))
+    for a, length in leaves:
+        mid = np.array(CROWN) + np.array([math.cos(a), math.sin(a)]) * length / 2
+        cv2.ellipse(mask, (int(mid[0]), int(mid[1])), (int(length / 2), int(length / 5)), math.degrees(a), 0, 360, 1, -1)
+    grey[mask > 0] = 60
+    for a, length in leaves:
+        tip = np.array(CROWN) + np.array([math.cos(a), math.sin(a)]) * 0.9 * length
+        cv2.line(grey, CROWN, (int(tip[0]), int(tip[1])), 170, 2)
+    if stray:  # (parallel to the first leaf's midrib, 9 px to each side of it)
+        a = leaves[0][0]
+        u, n = np.array([math.cos(a), math.sin(a)]), np.array([-math.sin(a), math.cos(a)])
+        for side in (-9, 9):
+            p0, p1 = np.array(CROWN) + 30 * u + side * n, np.array(CROWN) + 78 * u + side * n
+            cv2.line(grey, (int(p0[0]), int(p0[1])), (int(p1[0]), int(p1[1])), 170, 2)
+    return grey.astype(np.uint8), mask > 0
+
+
+def test_three_midribs_answer_only_when_they_are_nearly_all_the_lines(monkeypatch) -> None:
+    grey, mask = _three_leaves(stray=False)
+    got = midribs.midrib_centre(grey, mask)
+    assert got is not None and math.dist(got[0], CROWN) < 3.0 and got[1] == 3 and got[2] >= midribs.FEW_DIRS_SHARE
+    monkeypatch.setattr(midribs, "FEW_DIRS_SHARE", 1.01)  # four directions needed: no answer
+    assert midribs.midrib_centre(grey, mask) is None
+    monkeypatch.undo()
+    grey, mask = _three_leaves(stray=True)
+    assert midribs.midrib_centre(grey, mask) is None
+
 def test_no_lines_inside_the_leaves_no_answer() -> None:
     grey, mask = _rosette(False)
     assert midribs.midrib_centre(grey, mask) is None
