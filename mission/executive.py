@@ -714,17 +714,26 @@ class Executive:
 
     def _run_with(self, field_order) -> MissionResult:
         t0 = time.perf_counter()
-        ordered = field_order() if field_order else order_trois(self.trois, self.start.xy, self.end.xy)
-        results = [TargetResult(t.id, [t.x, t.y, t.r], mpoi_true=list(map(float, self.truth[t.id])) if t.id in self.truth else None) for t in ordered]
-        if self.log:
-            for t in ordered:
-                if t.id in self.truth:
-                    self.log.truth_mpoi(self.now_ns(), t.id, tuple(self.truth[t.id]))
-        self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
+
+        def results_of(order: list[TROI]) -> list[TargetResult]:
+            return [TargetResult(t.id, [t.x, t.y, t.r], mpoi_true=list(map(float, self.truth[t.id])) if t.id in self.truth else None)
+                    for t in order]
+
+        # the targets in the mission's order until the visit order is known: ordering thousands of
+        # targets takes seconds, and a run interrupted (or failing) then is reported like any other
+        ordered = list(self.trois)
+        results = results_of(ordered)
         self._tid, self._moves, self._e_start = "", 0, 0.0
         aborted = interrupted = None
         late = HeldSignals()  # from the first interrupt or the end of the targets on
         try:
+            ordered = field_order() if field_order else order_trois(self.trois, self.start.xy, self.end.xy)
+            results = results_of(ordered)
+            if self.log:
+                for t in ordered:
+                    if t.id in self.truth:
+                        self.log.truth_mpoi(self.now_ns(), t.id, tuple(self.truth[t.id]))
+            self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
             self._check_startup()
             if field_order is not None:
                 by_id = {r.id: r for r in results}

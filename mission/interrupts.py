@@ -1,6 +1,6 @@
-"""Ctrl-C / SIGTERM while a run is ending: noted, not raised.
+"""Ctrl-C / SIGTERM / SIGHUP while a run is ending: noted, not raised.
 
-The first Ctrl-C (or SIGTERM, which `capm-field run` turns into the same KeyboardInterrupt) stops the
+The first Ctrl-C (or SIGTERM or SIGHUP, which `capm-field run` turns into the same KeyboardInterrupt) stops the
 mission. The ending after it (flame off, body stopped, the run log closed, summary.json written) takes
 a few seconds, each step bounded by its driver timeout; a second press used to raise inside it and cut
 the summary (and any step after the one it landed in). While a `HeldSignals` is started, the two
@@ -14,13 +14,13 @@ import os
 import signal
 import threading
 
-_HELD = (signal.SIGINT, signal.SIGTERM)
+_HELD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 STOPPING = ("capm-field run: already stopping (flame off, body stopped, run log and summary being written); "
             "Ctrl-\\ kills at once\n")
 
 
 class HeldSignals:
-    """SIGINT / SIGTERM recorded in `received` (signal names, in order) instead of raising, between
+    """SIGINT / SIGTERM / SIGHUP recorded in `received` (signal names, in order) instead of raising, between
     `start()` and `stop()`. Both are idempotent; outside the main thread (where Python cannot set
     handlers) nothing is held and `start()` returns False."""
 

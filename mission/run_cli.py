@@ -2,7 +2,7 @@
 
 run: exit 0 when every target was handled (flamed, or skipped with a logged reason), 1 when the
 mission aborted (link loss, E-stop, …), 2 for bad input (nothing started, nothing written),
-130 / 143 when interrupted by Ctrl-C / SIGTERM (flame off, summary marked interrupted).
+130 / 143 / 129 when interrupted by Ctrl-C / SIGTERM / SIGHUP (flame off, summary marked interrupted).
 Writes DIR/run.mcap and DIR/summary.json (DIR from --out or the mission's output.dir).
 """
 
@@ -146,26 +146,68 @@ def _open_drivers(mission: Mission, robot, trois, seed: int | None, mission_dir:
     return mod.open_hardware_drivers(mission, robot, mission_dir)
 
 
-def _sigterm(signum: int, frame) -> None:
-    # `systemctl stop`, a supervisor: end as Ctrl-C does (flame off, summary marked interrupted)
-    raise KeyboardInterrupt("SIGTERM")
+def _stop_signal(signum: int, frame) -> None:
+    # `systemctl stop`, a supervisor (SIGTERM); the operator's SSH session or terminal gone (SIGHUP):
+    # end as Ctrl-C does (flame off, summary marked interrupted)
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+_STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)  # default for both: killed with no finally, flame not put out here
+
+
+class _Console:
+    """sys.stdout / sys.stderr for a run: a console that goes away (the terminal hung up: EIO; the
+    reader of a pipe gone: EPIPE) does not stop the mission nor skip its ending. The first failed
+    write is kept in `lost` and later ones are dropped: progress lines and messages are for the
+    operator, the run log and summary.json are the record."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.lost: OSError | ValueError | None = None
+
+    def write(self, text: str) -> int:
+        if self.lost is None:
+            try:
+                return self.stream.write(text)
+            except (OSError, ValueError) as e:  # (ValueError: the stream was closed)
+                self.lost = e
+        return len(text)
+
+    def flush(self) -> None:
+        if self.lost is None:
+            try:
+                self.stream.flush()
+            except (OSError, ValueError) as e:
+                self.lost = e
+
+    def __getattr__(self, name: str):
+        return getattr(self.stream, name)
 
 
 def main(argv: list[str]) -> int:
     a = _run_parser().parse_args(argv)
-    previous = None
+    previous: dict[int, object] = {}
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _sigterm)  # default: killed with no finally, flame not put out here
+        previous = {s: signal.signal(s, _stop_signal) for s in _STOP_SIGNALS}
+    consoles = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _Console(sys.stdout), _Console(sys.stderr)
     try:
         return _run(a)
     except KeyboardInterrupt as e:  # before or after the mission (the executive ends its own)
-        if str(e) != "SIGTERM":
+        if str(e) not in {s.name for s in _STOP_SIGNALS}:
             raise
-        print("capm-field run: interrupted (SIGTERM)", file=sys.stderr)
-        return 128 + signal.SIGTERM
+        print(f"capm-field run: interrupted ({e})", file=sys.stderr)
+        return 128 + signal.Signals[str(e)]
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        lost = [(c, w) for c, w in zip(consoles, (sys.stdout, sys.stderr)) if isinstance(w, _Console) and w.lost is not None]
+        sys.stdout, sys.stderr = consoles
+        for stream, _ in lost:  # the interpreter's flush at exit would fail again (exit 120): point it nowhere
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
+            except (OSError, ValueError, AttributeError):
+                pass
+        for s, h in previous.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
 
 
 def _run(a: argparse.Namespace) -> int:

@@ -309,21 +309,32 @@ import os, signal, sys, time
 # ignored, and Python then installs no KeyboardInterrupt handler
 signal.signal(signal.SIGINT, signal.default_int_handler)
 import mission.executive as ex
-real = ex.Executive._check_startup
-def interrupted(self):
-    real(self)
-    {action}
-    time.sleep(5)  # the signal's KeyboardInterrupt lands here
-ex.Executive._check_startup = interrupted
+if {while_ordering!r}:  # the visit order of thousands of targets takes seconds: the signal lands there
+    real_order = ex.order_trois
+    def ordering(*a, **k):
+        {action}
+        time.sleep(5)
+        return real_order(*a, **k)
+    ex.order_trois = ordering
+else:
+    real = ex.Executive._check_startup
+    def interrupted(self):
+        real(self)
+        {action}
+        time.sleep(5)  # the signal's KeyboardInterrupt lands here
+    ex.Executive._check_startup = interrupted
 from capm_field.cli import main
 sys.exit(main(['run', {mission!r}, '--out', {out!r}, '--quiet', '--force']))
 """
 
 
-@pytest.mark.parametrize("sig, rc", [("SIGINT", 130), ("SIGTERM", 143)])
-def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc):
-    """Ctrl-C left no summary (or an old one); SIGTERM killed the process without igniter off.
-    Both now: flame off, an interruption event in the log, a summary marked interrupted."""
+@pytest.mark.parametrize("sig, rc, while_ordering", [("SIGINT", 130, False), ("SIGTERM", 143, False), ("SIGHUP", 129, False),
+                                                     ("SIGINT", 130, True), ("SIGTERM", 143, True)])
+def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc, while_ordering):
+    """Ctrl-C left no summary (or an old one); SIGTERM and SIGHUP (the operator's SSH session gone)
+    killed the process without igniter off; an interrupt while the targets were being ordered (before
+    the mission's try) left an empty log and no summary. Now: flame off, an interruption event in the
+    log, a summary marked interrupted."""
     from mission.log_checks import check_ignition_invariant
     from mission.runlog_read import iter_run
 
@@ -331,7 +342,7 @@ def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc):
     out = tmp_path / "out"
     out.mkdir()
     (out / "summary.json").write_text('{"old": true}')
-    code = _INTERRUPT.format(action=f"os.kill(os.getpid(), signal.{sig})", mission=str(p), out=str(out))
+    code = _INTERRUPT.format(action=f"os.kill(os.getpid(), signal.{sig})", mission=str(p), out=str(out), while_ordering=while_ordering)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180)
     assert r.returncode == rc, r.stderr
     assert "Traceback" not in r.stderr and "interrupted" in r.stderr, r.stderr
@@ -345,6 +356,50 @@ def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc):
     assert not last.flame_on and not last.armed
 
 
+
+class _GoneConsole:
+    """A terminal that hangs up after `n` writes (EIO), or a pipe whose reader left (EPIPE)."""
+
+    def __init__(self, n: int, err: type[OSError] = OSError) -> None:
+        self.n, self.err, self.text = n, err, []
+
+    def write(self, text: str) -> int:
+        if self.n <= 0:
+            raise self.err(5, "Input/output error") if self.err is OSError else self.err(32, "Broken pipe")
+        self.n -= 1
+        self.text.append(text)
+        return len(text)
+
+    def flush(self) -> None:
+        if self.n <= 0:
+            raise self.err(5, "Input/output error")
+
+    def isatty(self) -> bool:
+        return False
+
+
+@pytest.mark.parametrize("err", [OSError, BrokenPipeError])
+def test_a_console_that_goes_away_does_not_stop_the_mission(tmp_path, monkeypatch, err):
+    """The operator's terminal hung up (EIO) or `run | tee` lost its reader (EPIPE) mid-mission: the
+    next progress line aborted the mission (internal error) and skipped closing the drivers and
+    writing the summary. Progress is for the operator; the mission goes on and its record is whole."""
+    import mission.run_cli as run_cli
+    from drivers.interfaces import DriverSet
+    from mission.runlog_read import iter_run
+
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    closed = []
+    real_close = DriverSet.close
+    monkeypatch.setattr(DriverSet, "close", lambda self: (closed.append(True), real_close(self))[1])
+    gone_out, gone_err = _GoneConsole(0, err), _GoneConsole(2, err)
+    monkeypatch.setattr(sys, "stdout", gone_out)
+    monkeypatch.setattr(sys, "stderr", gone_err)
+    rc = run_cli.main([str(p), "--out", str(tmp_path / "out")])
+    assert sys.stdout is gone_out and sys.stderr is gone_err  # given back
+    assert rc == 0 and closed == [True], gone_err.text
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert s["aborted"] is None and [t["flamed"] for t in s["targets"]] == [True, True], s
+    assert not any("internal error" in m.data.message for m in iter_run(tmp_path / "out" / "run.mcap", topics={"/log"}))
 
 _TWICE = """\
 import os, signal, sys, time
