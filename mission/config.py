@@ -639,6 +639,27 @@ def fuel_warnings(mission: Mission, n_trois: int) -> list[str]:
     return []
 
 
+def overlap_warnings(trois: list[TROI], shown_pairs: int = 3) -> list[str]:
+    """TROIs whose discs overlap (centres closer than r_a + r_b): each one's look may find the same
+    plant, the weed nearer the other's centre (the run skips a target whose centre it flamed already,
+    `already_flamed`, but the weed that target was for is left)."""
+    if len(trois) < 2:
+        return []
+    from scipy.spatial import cKDTree
+
+    xy = np.array([t.xy for t in trois], float)
+    r = np.array([t.r for t in trois], float)
+    pairs = sorted((i, j) for i, j in cKDTree(xy).query_pairs(2.0 * float(r.max()))
+                   if np.hypot(*(xy[i] - xy[j])) < r[i] + r[j])
+    if not pairs:
+        return []
+    eg = "; ".join(f"{trois[i].id} and {trois[j].id}: centres {np.hypot(*(xy[i] - xy[j])):.2f} m apart, radii "
+                   f"{r[i]:g} + {r[j]:g} m" for i, j in pairs[:shown_pairs])
+    more = f" (and {len(pairs) - shown_pairs} more pairs)" if len(pairs) > shown_pairs else ""
+    return [f"field: {len(pairs)} pair(s) of TROIs overlap — {eg}{more}: a look may find one plant for both; "
+            "a target whose centre was flamed already is skipped (already_flamed) and its own weed left"]
+
+
 def _check_plan(mission: Mission, trois: list[TROI], path: Path, lines: dict[tuple, int]) -> None:
     """What the schema cannot see but a run would only find out on the way: a bench fault
     schedule that does not parse, and a walk longer than the body can cover within its move

@@ -153,6 +153,7 @@ class Executive:
         self._hook_fn = hook
         self._index = 0
         self._directives: set[str] = set()
+        self._flamed_at: list[tuple[str, np.ndarray]] = []  # (target id, the MPOI it was flamed at) in this run
         # fuel budget: a target is begun only if its ξ hold fits above the reserve (FUEL_MARGIN ×
         # the larger of the configured rate and the highest rate measured over this run's holds)
         self.fuel_per_s = fuel_per_s
@@ -571,6 +572,7 @@ class Executive:
         res.mpoi_detected = [float(mpoi[0]), float(mpoi[1])]
         if self.log:
             self.log.regions(self.now_ns(), tid, troi, list(self.core.ro(troi.r).intervals), list(self.core.rm.intervals), tuple(mpoi))
+        self._check_not_flamed(tid, mpoi)
         body = x1
         upper = self.planner.name != "b" and bool(self.core.regions.in_R_m(x1, mpoi))
         if upper and flame_solution(self.robot, self.flame, self.core.maps, x1, tuple(mpoi)) is None:
@@ -592,11 +594,24 @@ class Executive:
                 raise _Skip("no_flame_pose_after_replan")
         self._flame_stow(i, n, tid, body, mpoi, res)
 
+    def _check_not_flamed(self, tid: str, mpoi: np.ndarray) -> None:
+        """Skip a target whose detected centre is one this run has flamed already (within
+        `aim_tolerance`, what the flame covers): overlapping TROIs, or a prescan listing one weed
+        twice, whose looks found the same plant. Flaming it again burns fuel on ash and reports a
+        second weed flamed where one was."""
+        for other, at in self._flamed_at:
+            d = float(np.hypot(*(np.asarray(mpoi, float) - at)))
+            if d <= self.aim_tolerance:
+                self._event("warning", f"{tid}: its centre is {other}'s, flamed already ({100 * d:.1f} cm away)",
+                            target=tid, same_as=other)
+                raise _Skip("already_flamed")
+
     def _flame_stow(self, i: int, n: int, tid: str, body: SE2, mpoi: np.ndarray, res: TargetResult) -> None:
         """Flame from `body` at the detected MPOI, stow, and score EPMC against the truth (bench)."""
         self._set_phase(i, n, tid, "flame")
         res.flame_s = self._flame(tid, body, mpoi)
         res.flamed = True
+        self._flamed_at.append((tid, np.array(mpoi, float)))
         self._hook("stow")
         self._stow()
         if tid in self.truth:
@@ -657,6 +672,7 @@ class Executive:
         else:
             mpoi = np.array(fp.known[tid])
         res.mpoi_detected = [float(mpoi[0]), float(mpoi[1])]
+        self._check_not_flamed(tid, mpoi)
         out = fp.after_observation(plan, mpoi)
         res.branch = out.branch
         body = x1

@@ -22,7 +22,7 @@ from pathlib import Path
 from capm_field.cli_args import seed as cli_seed
 from capm_field.errors import UserError
 
-from .config import Mission, MissionError, fuel_warnings, load_mission, robot_model
+from .config import Mission, MissionError, fuel_warnings, load_mission, overlap_warnings, robot_model
 
 OUTPUTS = ("run.mcap", "summary.json")
 
@@ -60,7 +60,7 @@ def validate_main(argv: list[str]) -> int:
     if problem:
         raise MissionError([f"{mission.where('output', 'dir')}: output.dir: {problem}"])
     print(f"{a.mission}: ok — {len(trois)} TROIs, planner {mission.planner}, drivers {mission.drivers.kind}")
-    for w in _link_warnings(mission) + fuel_warnings(mission, len(trois)):
+    for w in _link_warnings(mission) + fuel_warnings(mission, len(trois)) + overlap_warnings(trois):
         print(f"{a.mission}: warning: {w}", file=sys.stderr)
     return 0
 
@@ -213,6 +213,8 @@ def main(argv: list[str]) -> int:
 def _run(a: argparse.Namespace) -> int:
     mission, trois = load_mission(a.mission)
     check_hardware_files(mission, a.mission)
+    for w in overlap_warnings(trois):
+        print(f"capm-field run: warning: {w}", file=sys.stderr)
     faults = []
     if mission.drivers.kind == "bench":
         from sim_bench.faults import bench_faults

@@ -357,6 +357,53 @@ def test_interrupted_run_ends_safe_and_says_so(tmp_path, sig, rc, while_ordering
 
 
 
+OVERLAP = """\
+name: overlap
+field:
+  trois:
+    - {id: A, x: 1.5, y: 0.5, r: 0.2}
+    - {id: B, x: 1.6, y: 0.5, r: 0.2}
+    - {id: C, x: 2.6, y: 0.2, r: 0.2}
+start: {x: 0.0, y: 0.0, yaw: 0.0}
+drivers: {kind: bench, seed: 3}
+"""
+
+
+def test_overlapping_trois_are_warned_of_and_one_plant_is_flamed_once(tmp_path, capsys):
+    """Two TROIs 0.10 m apart (r 0.2): validated silently, and both looks found one plant, which
+    was flamed twice and reported as two weeds flamed (bench seed 3: A's look took B's plant).
+    Now `validate` and `run` warn, and a target whose detected centre was flamed already is skipped."""
+    from mission.config import overlap_warnings
+
+    p = _write(tmp_path, OVERLAP)
+    rc, err = _validate(tmp_path, OVERLAP, capsys)
+    assert rc == 0 and "warning: field: 1 pair(s) of TROIs overlap — A and B: centres 0.10 m apart" in err, err
+    trois = load_mission(p)[1]
+    assert overlap_warnings(trois[2:]) == [] and overlap_warnings(trois[:1]) == []
+    assert cli.main(["run", str(p), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    assert "capm-field run: warning: field: 1 pair(s) of TROIs overlap" in capsys.readouterr().err
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    flamed = [t for t in s["targets"] if t["flamed"]]
+    for t in s["targets"]:  # no two flames at one centre; a look that found a flamed one is skipped as such
+        near = [f["id"] for f in flamed if f is not t and math.dist(f["mpoi_detected"], t["mpoi_detected"]) <= 0.03]
+        assert not (t["flamed"] and near), (t, near)
+        assert (t["reason"] == "already_flamed") == bool(near), (t, near)
+    assert [t["reason"] for t in s["targets"]].count("already_flamed") == 1, s["targets"]
+
+
+def test_a_centre_flamed_already_is_skipped_not_flamed_again():
+    """The executive's own rule, apart from any scene: within `aim_tolerance` of a flamed centre."""
+    import numpy as np
+
+    from mission.executive import Executive, _Skip
+
+    ex = object.__new__(Executive)  # (only the rule's state: no drivers)
+    ex.log, ex._flamed_at = None, [("A", np.array([1.0, 2.0]))]
+    ex._check_not_flamed("B", np.array([1.0 + 1.1 * Executive.aim_tolerance, 2.0]))  # another plant (raises if not)
+    with pytest.raises(_Skip) as e:
+        ex._check_not_flamed("C", np.array([1.0, 2.0 + 0.5 * Executive.aim_tolerance]))
+    assert e.value.reason == "already_flamed"
+
 class _GoneConsole:
     """A terminal that hangs up after `n` writes (EIO), or a pipe whose reader left (EPIPE)."""
 
