@@ -32,27 +32,34 @@ def order_trois(trois: list[TROI], start_xy: np.ndarray, end_xy: np.ndarray, max
     # 2-opt, first improvement in (i, j) scan order: reversing order[i..j] changes the path
     # length by d(P[i-1], P[j]) + d(P[i], P[j+1]) − d(P[i-1], P[i]) − d(P[j], P[j+1]) on the path
     # P = start, order…, end — evaluated for every j at once (O(n²) per round, not O(n³))
+    # (the path's points and its legs' lengths are kept up to date in place as segments reverse:
+    # rebuilding them for every move made 5000 TROIs take ~7 s)
     s0, e0 = np.asarray(start_xy, float), np.asarray(end_xy, float)
+    idx = np.array(order)
+    P = np.vstack([s0, pts[idx], e0])  # path index k ↔ idx[k - 1]
+    leg = np.hypot(*np.diff(P, axis=0).T)  # leg[k] = d(P[k], P[k + 1])
     for _ in range(max_rounds):
         improved = False
         for i in range(n - 1):
             j0 = i + 1
             while j0 < n:
-                P = np.vstack([s0, pts[order], e0])  # path index k ↔ order[k - 1]
                 a, b = P[i], P[i + 1]  # P[i-1] and P[i] in path terms (order index i is path i + 1)
-                js = np.arange(j0, n)
-                c, dd = P[js + 1], P[js + 2]
-                delta = np.hypot(*(a - c).T) + np.hypot(*(b - dd).T) - np.hypot(*(a - b)) - np.hypot(*(c - dd).T)
+                c, dd = P[j0 + 1:n + 1], P[j0 + 2:n + 2]
+                delta = np.hypot(*(a - c).T) + np.hypot(*(b - dd).T) - leg[i] - leg[j0 + 1:n + 1]
                 hit = np.flatnonzero(delta < -1e-12)
                 if len(hit) == 0:
                     break
-                j = int(js[hit[0]])
-                order = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+                j = j0 + int(hit[0])
+                idx[i:j + 1] = idx[i:j + 1][::-1].copy()
+                P[i + 1:j + 2] = P[i + 1:j + 2][::-1].copy()
+                leg[i + 1:j + 1] = leg[i + 1:j + 1][::-1].copy()  # the reversed stretch's inner legs ...
+                leg[i] = np.hypot(*(P[i + 1] - P[i]))  # ... and the two new ones at its ends
+                leg[j + 1] = np.hypot(*(P[j + 2] - P[j + 1]))
                 improved = True
                 j0 = j + 1
         if not improved:
             break
-    return [trois[i] for i in order]
+    return [trois[i] for i in idx]
 
 
 def x_kmax(ordered: list[TROI], i: int, end: SE2) -> SE2:

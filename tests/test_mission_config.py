@@ -133,6 +133,51 @@ def test_ordering_nearest_neighbour_two_opt_is_no_longer_than_nn():
                 assert length(order[:i] + order[i : j + 1][::-1] + order[j + 1 :]) >= base - 1e-9
 
 
+def _order_rebuilt_per_move(trois, start_xy, end_xy, max_rounds=50):
+    """`order_trois` as first written (its path rebuilt after every 2-opt move): the reference the
+    in-place version must reproduce move for move."""
+    pts = np.array([t.xy for t in trois], float)
+    n = len(trois)
+    left, order, cur = np.ones(n, bool), [], np.asarray(start_xy, float)
+    for _ in range(n):
+        nxt = int(np.argmin(np.where(left, np.hypot(*(pts - cur).T), np.inf)))
+        order.append(nxt)
+        left[nxt] = False
+        cur = pts[nxt]
+    s0, e0 = np.asarray(start_xy, float), np.asarray(end_xy, float)
+    for _ in range(max_rounds):
+        improved = False
+        for i in range(n - 1):
+            j0 = i + 1
+            while j0 < n:
+                P = np.vstack([s0, pts[order], e0])
+                a, b = P[i], P[i + 1]
+                js = np.arange(j0, n)
+                c, dd = P[js + 1], P[js + 2]
+                delta = np.hypot(*(a - c).T) + np.hypot(*(b - dd).T) - np.hypot(*(a - b)) - np.hypot(*(c - dd).T)
+                hit = np.flatnonzero(delta < -1e-12)
+                if len(hit) == 0:
+                    break
+                j = int(js[hit[0]])
+                order = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+                improved = True
+                j0 = j + 1
+        if not improved:
+            break
+    return [trois[i] for i in order]
+
+
+def test_ordering_in_place_gives_the_reference_order():
+    """The 2-opt keeps its path and leg lengths up to date in place (5000 TROIs: 7.0 → 1.8 s); the
+    visit order is the one the rebuilt-per-move version gives, on spread, clustered and repeated points."""
+    rng = np.random.default_rng(7)
+    for k in range(40):
+        n = int(rng.integers(2, 80))
+        xy = rng.uniform(0, 8, (n, 2)) if k % 3 else np.round(rng.normal(3, 0.5, (n, 2)), 1)  # (rounded: repeats)
+        trois = [TROI(float(x), float(y), 0.1, f"T{i}") for i, (x, y) in enumerate(xy)]
+        start, end = rng.uniform(-1, 9, 2), rng.uniform(-1, 9, 2)
+        assert [t.id for t in order_trois(trois, start, end)] == [t.id for t in _order_rebuilt_per_move(trois, start, end)]
+
 def test_duplicate_keys_and_non_finite_numbers_are_errors(tmp_path):
     text = GOOD.replace("{x: 1.0,", "{x: .nan,") + "start: {x: 5, y: 0}\ntask: {gamma: .inf}\n"
     with pytest.raises(MissionError) as ei:
