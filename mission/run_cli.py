@@ -199,12 +199,16 @@ def main(argv: list[str]) -> int:
         print(f"capm-field run: interrupted ({e})", file=sys.stderr)
         return 128 + signal.Signals[str(e)]
     finally:
-        lost = [(c, w) for c, w in zip(consoles, (sys.stdout, sys.stderr)) if isinstance(w, _Console) and w.lost is not None]
+        lost = [c for c, w in zip(consoles, (sys.stdout, sys.stderr)) if isinstance(w, _Console) and w.lost is not None]
         sys.stdout, sys.stderr = consoles
-        for stream, _ in lost:  # the interpreter's flush at exit would fail again (exit 120): point it nowhere
+        for stream in lost:  # the interpreter's flush at exit would fail again (exit 120): point it nowhere
             try:
-                os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
-            except (OSError, ValueError, AttributeError):
+                null = os.open(os.devnull, os.O_WRONLY)
+                try:
+                    os.dup2(null, stream.fileno())
+                finally:
+                    os.close(null)
+            except (OSError, ValueError, AttributeError):  # (a console without a file descriptor: nothing to point)
                 pass
         for s, h in previous.items():
             signal.signal(s, h if h is not None else signal.SIG_DFL)
