@@ -599,12 +599,15 @@ class Executive:
         `aim_tolerance`, what the flame covers): overlapping TROIs, or a prescan listing one weed
         twice, whose looks found the same plant. Flaming it again burns fuel on ash and reports a
         second weed flamed where one was."""
-        for other, at in self._flamed_at:
-            d = float(np.hypot(*(np.asarray(mpoi, float) - at)))
-            if d <= self.aim_tolerance:
-                self._event("warning", f"{tid}: its centre is {other}'s, flamed already ({100 * d:.1f} cm away)",
-                            target=tid, same_as=other)
-                raise _Skip("already_flamed")
+        if not self._flamed_at:
+            return
+        d = np.hypot(*(np.array([at for _, at in self._flamed_at]) - np.asarray(mpoi, float)).T)
+        k = int(np.argmin(d))
+        if d[k] <= self.aim_tolerance:
+            other = self._flamed_at[k][0]
+            self._event("warning", f"{tid}: its centre is {other}'s, flamed already ({100 * d[k]:.1f} cm away)",
+                        target=tid, same_as=other)
+            raise _Skip("already_flamed")
 
     def _flame_stow(self, i: int, n: int, tid: str, body: SE2, mpoi: np.ndarray, res: TargetResult) -> None:
         """Flame from `body` at the detected MPOI, stow, and score EPMC against the truth (bench)."""

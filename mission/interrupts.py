@@ -14,7 +14,8 @@ import os
 import signal
 import threading
 
-_HELD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)  # what `capm-field run` turns into a Ctrl-C (its default: killed, no finally)
+_HELD = (signal.SIGINT, *STOP_SIGNALS)
 STOPPING = ("capm-field run: already stopping (flame off, body stopped, run log and summary being written); "
             "Ctrl-\\ kills at once\n")
 

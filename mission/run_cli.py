@@ -23,6 +23,7 @@ from capm_field.cli_args import seed as cli_seed
 from capm_field.errors import UserError
 
 from .config import Mission, MissionError, fuel_warnings, load_mission, overlap_warnings, robot_model
+from .interrupts import STOP_SIGNALS, HeldSignals
 
 OUTPUTS = ("run.mcap", "summary.json")
 
@@ -152,9 +153,6 @@ def _stop_signal(signum: int, frame) -> None:
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
-_STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)  # default for both: killed with no finally, flame not put out here
-
-
 class _Console:
     """sys.stdout / sys.stderr for a run: a console that goes away (the terminal hung up: EIO; the
     reader of a pipe gone: EPIPE) does not stop the mission nor skip its ending. The first failed
@@ -188,13 +186,13 @@ def main(argv: list[str]) -> int:
     a = _run_parser().parse_args(argv)
     previous: dict[int, object] = {}
     if threading.current_thread() is threading.main_thread():
-        previous = {s: signal.signal(s, _stop_signal) for s in _STOP_SIGNALS}
+        previous = {s: signal.signal(s, _stop_signal) for s in STOP_SIGNALS}
     consoles = sys.stdout, sys.stderr
     sys.stdout, sys.stderr = _Console(sys.stdout), _Console(sys.stderr)
     try:
         return _run(a)
     except KeyboardInterrupt as e:  # before or after the mission (the executive ends its own)
-        if str(e) not in {s.name for s in _STOP_SIGNALS}:
+        if str(e) not in {s.name for s in STOP_SIGNALS}:
             raise
         print(f"capm-field run: interrupted ({e})", file=sys.stderr)
         return 128 + signal.Signals[str(e)]
@@ -242,7 +240,6 @@ def _run(a: argparse.Namespace) -> int:
     from capm_field.reachability import get_maps
 
     from .executive import Executive
-    from .interrupts import HeldSignals
     from .runlog import RunLogHandler
 
     quiet = a.quiet
