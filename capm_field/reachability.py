@@ -34,7 +34,8 @@ from typing import Callable
 import numpy as np
 
 from .camera import PinholeCamera
-from .config import ReachabilityConfig, RobotConfig, TaskConfig
+from .config import ReachabilityConfig, TaskConfig
+from .errors import UserError
 from .geometry import SE2, wrap_angle
 from .robot_model import RobotModel
 
@@ -300,6 +301,9 @@ class FlameSolver:
 def _manip_map(robot: RobotModel, task: TaskConfig, rc: ReachabilityConfig, n_r: int) -> tuple[PolarMap, int]:
     """R_m by IK over a radial grid at bearing 0 (joint 1 provides the other bearings)."""
     solver = FlameSolver(robot, task)
+    if len(solver.bank_pts) == 0:  # (was a numpy "zero-size array" error in the run's one error line)
+        raise UserError(f"R_m is empty: no arm pose points the nozzle within robot.nozzle.max_tilt "
+                        f"({math.degrees(robot.cfg.nozzle.max_tilt):.3g}°) of straight down clear of the body (check robot and task)")
     h = robot.height
     q1 = (float(robot.lower[0]), float(robot.upper[0]))
     rs, phis, qs, ts = [], [], [], []
@@ -392,7 +396,7 @@ def build_maps(
     for rw in radii:
         sel = (r_lo <= rw) & (rw <= r_hi)
         observe.append(_collect(rc.radial_step, n_r, q1, r[sel], phi[sel], q[sel], depth[sel]))
-    key = maps_key(robot.cfg, task, rc)
+    key = maps_key(robot, task, rc)
     return ReachabilityMaps(
         manip, tuple(observe), radii, key, time.perf_counter() - t0, {"nozzle_configs": n_manip, "camera_configs": n_obs}
     )
@@ -401,13 +405,18 @@ def build_maps(
 # ---------------------------------------------------------------------------------------------
 # Cache
 # ---------------------------------------------------------------------------------------------
-def maps_key(robot: RobotConfig, task: TaskConfig, rc: ReachabilityConfig) -> str:
+def maps_key(robot: RobotModel, task: TaskConfig, rc: ReachabilityConfig) -> str:
+    """The cache key of the maps: every value they depend on. The URDF by its contents, not its
+    name: an edited URDF at the same path had its old maps read back (and a copy elsewhere, or a
+    mission moved, rebuilt the same ones)."""
     import hashlib
     import json
 
+    cfg = robot.cfg.model_dump(mode="json")
+    cfg["arm"]["urdf"] = hashlib.sha256(Path(robot.urdf_path).read_bytes()).hexdigest()
     relevant = {
         "format": MAP_FORMAT,
-        "robot": robot.model_dump(mode="json"),
+        "robot": cfg,
         "task": {k: getattr(task, k) for k in ("delta", "eps_min", "eps_max")},
         "res": rc.model_dump(mode="json", exclude={"cache_dir"}),
     }
@@ -461,7 +470,7 @@ def get_maps(
 ) -> ReachabilityMaps:
     """Maps for this robot + task: from the on-disk cache when present, else built and cached."""
     rc = rc or ReachabilityConfig()
-    key = maps_key(robot.cfg, task, rc)
+    key = maps_key(robot, task, rc)
     path = cache_dir(rc) / f"reach-{key}.npz"
     if use_cache and path.is_file():
         try:

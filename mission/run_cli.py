@@ -56,14 +56,41 @@ def validate_main(argv: list[str]) -> int:
     a = _validate_parser().parse_args(argv)
     mission, trois = load_mission(a.mission)
     check_hardware_files(mission, a.mission)
-    robot_model(mission)  # the URDF, its flange frame and joint count (ms; the maps are left to run)
+    robot_model(mission)  # the URDF, its flange frame and joint count, before the maps take seconds
     problem = _output_problem(Path(mission.output.dir))
     if problem:
         raise MissionError([f"{mission.where('output', 'dir')}: output.dir: {problem}"])
+    plan_check(mission, trois, a.mission)  # the maps as run makes them (cached: the run reuses them)
     print(f"{a.mission}: ok — {len(trois)} TROIs, planner {mission.planner}, drivers {mission.drivers.kind}")
     for w in _link_warnings(mission) + fuel_warnings(mission, len(trois)) + overlap_warnings(trois):
         print(f"{a.mission}: warning: {w}", file=sys.stderr)
     return 0
+
+
+def plan_check(mission: Mission, trois: list, mission_path: str | Path, quiet: bool = False, tail: str = ""):
+    """(robot, core, planner) for this mission, or UserError (exit 2): the reachability maps (from
+    the cache, or built with progress lines on stderr unless `quiet`), the planning core and the
+    planner, and every TROI plannable. A robot/task inside every bound whose geometry admits no plan
+    (R_m empty, a flame that may not tilt) fails here; `validate` and `run` both call it, `run`
+    before anything is written. `tail` ends the error line."""
+    from capm_field.config import ReachabilityConfig
+    from capm_field.planners import PlanningCore, make_planner
+    from capm_field.reachability import get_maps
+
+    say = (lambda m: None) if quiet else (lambda m: print(f"reachability maps: {m}", file=sys.stderr))
+    try:
+        robot = robot_model(mission)
+        maps = get_maps(robot, mission.task, ReachabilityConfig(), progress=say)
+        core = PlanningCore(robot, maps, mission.task)
+        for t in trois:
+            core.effective_radius(t.r)  # every TROI must be plannable before anything starts
+        planner = make_planner(mission.planner, core, seed=mission.drivers.seed if mission.drivers.kind == "bench" else 0)
+    except UserError as e:
+        raise UserError(f"{mission_path}: {e}{tail}") from e
+    except Exception as e:  # noqa: BLE001 - a robot/task the schema allows but the geometry cannot use
+        raise UserError(f"{mission_path}: robot/task: no plan can be made with these values ({type(e).__name__}: "
+                        f"{' '.join(str(e).split())[:200]}){tail}") from e
+    return robot, core, planner
 
 
 def _output_problem(out: Path) -> str | None:
@@ -235,27 +262,11 @@ def _run(a: argparse.Namespace) -> int:
     if taken and not a.force:
         raise UserError(f"{taken[0]} already exists: choose another --out or pass --force (nothing was started)")
 
-    from capm_field.config import ReachabilityConfig
-    from capm_field.planners import PlanningCore, make_planner
-    from capm_field.reachability import get_maps
-
     from .executive import Executive
     from .runlog import RunLogHandler
 
     quiet = a.quiet
-    say = (lambda m: None) if quiet else (lambda m: print(f"reachability maps: {m}", file=sys.stderr))
-    try:
-        robot = robot_model(mission)
-        maps = get_maps(robot, mission.task, ReachabilityConfig(), progress=say)
-        core = PlanningCore(robot, maps, mission.task)
-        for t in trois:
-            core.effective_radius(t.r)  # every TROI must be plannable before anything starts
-        planner = make_planner(mission.planner, core, seed=mission.drivers.seed if mission.drivers.kind == "bench" else 0)
-    except UserError:
-        raise
-    except Exception as e:  # noqa: BLE001 - a robot/task the schema allows but the geometry cannot use
-        raise UserError(f"{a.mission}: robot/task: no plan can be made with these values ({type(e).__name__}: "
-                        f"{' '.join(str(e).split())[:200]}) (nothing was started)") from e
+    robot, core, planner = plan_check(mission, trois, a.mission, quiet, " (nothing was started)")
     from drivers.interfaces import DriverError
 
     made = not out.exists()

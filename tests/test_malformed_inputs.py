@@ -150,13 +150,19 @@ def test_a_focal_length_under_a_pixel_is_refused(tmp_path, capsys):
 
 def test_run_with_an_unplannable_robot_is_exit_2_and_writes_nothing(tmp_path, capsys):
     """Values inside every bound whose geometry still fails (here: a flame that may not tilt at
-    all) crashed the planning core with a traceback; now one line, exit 2, no output."""
+    all) crashed the planning core with a traceback, then were one line naming numpy's "zero-size
+    array"; now the line says R_m is empty and why, exit 2, no output. `validate` builds the
+    same maps and says the same (it said "ok", and only `run` refused)."""
     p = _write(tmp_path, GOOD + "robot: {nozzle: {max_tilt: 1.0e-9}}\n")
     out = tmp_path / "out"
     assert cli.main(["run", str(p), "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "robot/task: no plan can be made with these values" in err and "nothing was started" in err
+    assert "R_m is empty: no arm pose points the nozzle within robot.nozzle.max_tilt" in err, err
+    assert "nothing was started" in err and "zero-size" not in err
     assert not out.exists()
+    assert cli.main(["validate", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "R_m is empty: no arm pose points the nozzle within robot.nozzle.max_tilt" in err and "ok" not in err, err
 
 
 # ---- zenoh config files ---------------------------------------------------------------------------

@@ -132,3 +132,22 @@ def test_flame_solver_solution_satisfies_epmc(robot, task):
     assert task.eps_min - 1e-6 <= d2 <= task.eps_max + 1e-6  # EPMC: ‖X_e − X̄_w‖² ∈ [ε_min, ε_max]
     assert robot.config_valid(q)
     assert solver.solve(np.array([1.6, 0.0, -robot.height])) is None  # out of reach
+
+
+def test_maps_cache_key_follows_the_urdf_contents_not_its_name(tmp_path, robot, task):
+    """An edited URDF at the same path read back the old file's maps; a byte-identical copy
+    elsewhere (a mission moved to another directory) rebuilt maps it already had."""
+    from capm_field.config import RobotConfig
+    from capm_field.reachability import maps_key
+    from capm_field.robot_model import RobotModel, default_urdf_path
+
+    rc = ReachabilityConfig()
+    copy = tmp_path / "z1.urdf"
+    copy.write_bytes(default_urdf_path().read_bytes())
+    arm = RobotConfig().arm.model_copy(update={"urdf": str(copy)})
+    moved = RobotModel(RobotConfig().model_copy(update={"arm": arm}))
+    assert maps_key(moved, task, rc) == maps_key(robot, task, rc)
+    text = copy.read_text()
+    assert text.count('xyz="0 0 0.045"') == 1
+    copy.write_text(text.replace('xyz="0 0 0.045"', 'xyz="0 0 0.055"'))  # joint 2 one centimetre higher
+    assert maps_key(RobotModel(RobotConfig().model_copy(update={"arm": arm})), task, rc) != maps_key(robot, task, rc)
