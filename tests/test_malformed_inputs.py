@@ -136,6 +136,19 @@ def test_config_models_refuse_yes_no_and_implausible_values():
     assert BodyConfig(max_speed=1.6).max_speed == 1.6 and ArmConfig().stow_joints[2] == -0.005
 
 
+def test_angles_in_degrees_and_a_tilted_arm_mount_are_refused(tmp_path, capsys):
+    """A hand-eye rpy of (-90, 0, -90) (degrees) built a meaningless camera and the maps went on
+    with it; a pitched arm mount was planned with a level base's maps (15 of 120 targets answered
+    wrongly at 0.25 rad, an audit). Both are now mission errors naming the key."""
+    text = GOOD + "robot:\n  body: {arm_mount: {rpy: [0, 0.25, 0]}}\n  camera: {hand_eye: {rpy: [-90, 0, -90]}}\n"
+    rc, err = _validate(tmp_path, text, capsys)
+    assert rc == 2 and ":7: robot.body.arm_mount: roll and pitch must be 0" in err, err
+    assert ":8: robot.camera.hand_eye.rpy.0: Input should be greater than or equal to -6.2832 (got -90)" in err, err
+    # a yawed mount and radians are fine
+    assert BodyConfig(arm_mount={"xyz": (0.1, 0.0, 0.0), "rpy": (0.0, 0.0, 1.0)}).arm_mount.rpy[2] == 1.0
+    assert CameraConfig(hand_eye={"rpy": (-1.5708, 0.0, -1.5708)}).hand_eye.rpy[0] == -1.5708
+
+
 def test_a_focal_length_under_a_pixel_is_refused(tmp_path, capsys):
     """fx = 1e-20 px passed every bound: the maps came out NaN and `run` flew the mission on them
     (0 of 1 flamed, exit 0; with fy too, `internal error: AssertionError`, exit 1) instead of

@@ -27,7 +27,8 @@ def test_closed_form_two_intervals_adds_up():
 
 
 def test_numeric_integration_agrees_with_closed_form_and_mc(regions, core):
-    """Numeric p over the full map (joint 1 cannot reach the 60° sector behind the arm) matches
+    """Numeric p over the full map (which leaves out the 60° sector behind the arm: one IK branch
+    per radius, joint 1's ±150°; other branches reach part of it, docs/model.md) matches
     Monte Carlo on the same map; the annular closed form ignores that sector, so it bounds the
     numeric value from above and equals it where the sector holds no probability mass."""
     rng = np.random.default_rng(5)
