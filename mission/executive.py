@@ -744,7 +744,8 @@ class Executive:
         results = results_of(ordered)
         self._tid, self._moves, self._e_start = "", 0, 0.0
         aborted = interrupted = None
-        late = HeldSignals()  # from the first interrupt or the end of the targets on
+        late = HeldSignals()  # the first interrupt raises; any later one (and all from the end of the targets on) is held
+        late.start(raise_first=True)
         try:
             ordered = field_order() if field_order else order_trois(self.trois, self.start.xy, self.end.xy)
             results = results_of(ordered)
@@ -791,11 +792,11 @@ class Executive:
             # robot/task): the robot is made safe and the run recorded like any abort, traceback in the log
             aborted = f"internal error: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
             self._event("error", "".join(traceback.format_exception(e))[-8000:])
-        except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM (`capm-field run` raises it for that too):
-            late.start()  # ended like an abort and recorded; a second press is noted, not raised
-            interrupted = str(e) or "SIGINT"
+        except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM or SIGHUP (`late` raises the first): ended like an
+            interrupted = str(e) or "SIGINT"  # abort and recorded; a second one is noted, not raised
             aborted = f"interrupted ({interrupted})"
         except BaseException:  # not ours to end (SystemExit …): only made safe
+            late.stop()
             self._safe()
             raise
         late.start()

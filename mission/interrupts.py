@@ -29,20 +29,34 @@ class HeldSignals:
         self.message = message
         self.received: list[str] = []
         self._previous: dict[int, object] | None = None
+        self._raise_next = False
 
     def _note(self, signum: int, frame) -> None:
-        self.received.append(signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        if self._raise_next:  # (handlers run one at a time, in the main thread: no race on the flag)
+            self._raise_next = False
+            raise KeyboardInterrupt(name)
+        self.received.append(name)
         try:
             os.write(2, self.message.encode())  # async-signal-safe, unlike print
         except OSError:
             pass
 
-    def start(self) -> bool:
+    def start(self, raise_first: bool = False) -> bool:
+        """Hold the signals from now on; with `raise_first`, the first one still raises
+        KeyboardInterrupt(its name) and only the later ones are held. A run uses that for its whole
+        mission: two signals arriving together (Ctrl-C and a supervisor's SIGTERM, an SSH drop's
+        SIGHUP and SIGTERM) are handled back to back, and the second raised inside the `except`
+        that was about to hold it, skipping the ending (no flame-off step, no summary). Called again
+        without `raise_first`, every later signal is held."""
+        self._raise_next = raise_first
         if self._previous is not None:
             return True
         if threading.current_thread() is not threading.main_thread():
             return False
-        self._previous = {s: signal.signal(s, self._note) for s in _HELD}
+        # a signal the process was started ignoring (SIGHUP under nohup, SIGINT in a script's background
+        # job) stays ignored
+        self._previous = {s: signal.signal(s, self._note) for s in _HELD if signal.getsignal(s) is not signal.SIG_IGN}
         return True
 
     def stop(self) -> None:

@@ -213,7 +213,8 @@ def main(argv: list[str]) -> int:
     a = _run_parser().parse_args(argv)
     previous: dict[int, object] = {}
     if threading.current_thread() is threading.main_thread():
-        previous = {s: signal.signal(s, _stop_signal) for s in STOP_SIGNALS}
+        # (one the process was started ignoring stays ignored: `nohup capm-field run …` outlives the SSH session)
+        previous = {s: signal.signal(s, _stop_signal) for s in STOP_SIGNALS if signal.getsignal(s) is not signal.SIG_IGN}
     consoles = sys.stdout, sys.stderr
     sys.stdout, sys.stderr = _Console(sys.stdout), _Console(sys.stderr)
     try:

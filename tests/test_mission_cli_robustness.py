@@ -489,6 +489,62 @@ def test_second_ctrl_c_during_the_ending_is_noted_and_the_summary_still_written(
     assert not last.flame_on and not last.armed
 
 
+_TOGETHER = """\
+import os, signal, sys
+IGNORE = {ignore!r}
+if IGNORE:
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # as nohup starts it
+import mission.executive as ex
+real = ex.Executive._check_startup
+def together(self):
+    real(self)
+    both = {{signal.SIGTERM, signal.SIGHUP}} if not IGNORE else {{signal.SIGHUP}}
+    signal.pthread_sigmask(signal.SIG_BLOCK, both)
+    for s in sorted(both):
+        os.kill(os.getpid(), s)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, both)  # both handlers now run back to back
+    for _ in range(1000):
+        pass
+ex.Executive._check_startup = together
+from capm_field.cli import main
+sys.exit(main(['run', {mission!r}, '--out', {out!r}, '--quiet']))
+"""
+
+
+def test_two_stop_signals_arriving_together_still_end_the_run_and_write_the_summary(tmp_path):
+    """SIGHUP and SIGTERM pending at once (an SSH drop with a supervisor's stop; Ctrl-C with
+    SIGTERM) are handled back to back: the second raised inside the executive's `except` before
+    it held further signals, so the ending (flame off, body stop, the final igniter state) and
+    summary.json were skipped (a soak audit: 7 of 10 tries)."""
+    from mission.runlog_read import iter_run
+
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-c", _TOGETHER.format(mission=str(p), out=str(out), ignore=False)],
+                       capture_output=True, text=True, timeout=180)
+    assert r.returncode == 129, r.stderr  # SIGHUP (the lower number) is handled first
+    assert "Traceback" not in r.stderr and r.stderr.count("already stopping") == 1, r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] is True and s["aborted"] == "interrupted (SIGHUP)", s
+    logs = [m.data.message for m in iter_run(out / "run.mcap", topics={"/log"})]
+    assert any("mission interrupted (SIGHUP)" in x for x in logs), logs
+    assert any("SIGTERM during the run's ending: noted" in x for x in logs), logs
+    last = [m.data for m in iter_run(out / "run.mcap", topics={"/igniter/state"})][-1]
+    assert not last.flame_on and not last.armed
+
+
+def test_a_run_started_ignoring_sighup_outlives_the_hang_up(tmp_path):
+    """`nohup capm-field run ...`: SIGHUP ignored by who started the run stays ignored (the run
+    installed its own handler over it and stopped when the SSH session went)."""
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-c", _TOGETHER.format(mission=str(p), out=str(out), ignore=True)],
+                       capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] is False and s["aborted"] is None, s
+
+
 # ---- found by a malformed-input audit (session 52) ------------------------------------------------------
 def test_prescan_ids_generated_around_listed_ones(tmp_path):
     """A row without id was T<row count so far>, even when a listed row had that id: a duplicate."""
