@@ -252,6 +252,17 @@ class Executive:
             return
         r = self.d.arm.stow(self.timeouts["arm"], on_state=self._tf_arm)
         self._tf()
+        if not r.ok and self.d.arm.state().fault:
+            # a latched arm fault: reset once and retry, as for any arm move (`_arm_to`)
+            self._event("warning", f"arm fault {self.d.arm.state().fault} while stowing: reset and retry once")
+            self.d.arm.reset(self.timeouts["arm"])
+            r = self.d.arm.stow(self.timeouts["arm"], on_state=self._tf_arm)
+            self._tf()
+        if not r.ok and self.d.arm.state().fault:
+            # still latched: no target can be reached without walking with the arm out, so every one
+            # after would be skipped the same way and the run end "done" (a soak audit: one overcurrent
+            # while stowing skipped 17 of 20 targets, exit 0) — the mission aborts instead
+            raise MissionAborted(f"arm cannot stow: fault {self.d.arm.state().fault} latched after a reset")
         if not r.ok:
             raise _Skip(f"arm_stow_failed:{r.reason}")
 
@@ -518,6 +529,21 @@ class Executive:
         if fault:
             raise MissionAborted(f"igniter: fault latched ({fault}) after the bounded trials; {tid} and later targets not begun")
 
+    def _check_arm(self, tid: str) -> None:
+        """Begin a target only with an arm that can move: a fault still latched here is one the
+        last target's reset and retry left; one more reset, and if it holds, every later target
+        would be walked to and skipped at its first arm move (a run ending 'done', exit 0).
+        Raises MissionAborted."""
+        fault = self.d.arm.state().fault
+        if fault and "link_lost" in fault:
+            raise LinkLost(f"arm link lost ({fault})")
+        if fault:
+            self._event("warning", f"arm fault {fault} latched before {tid}: reset once")
+            self.d.arm.reset(self.timeouts["arm"])
+            fault = self.d.arm.state().fault
+            if fault:
+                raise MissionAborted(f"arm: fault latched ({fault}) after a reset; {tid} and later targets not begun")
+
     def _check_fuel(self, tid: str) -> None:
         """Begin a target only with its flame hold's fuel above the reserve: aborting here, before
         the walk, leaves the tank's last fuel unplanned and no weed half-burnt (a run-dry mid-hold
@@ -559,6 +585,7 @@ class Executive:
         self._hook("walk")
         self._check_log(tid)
         self._check_igniter(tid)
+        self._check_arm(tid)
         self._check_fuel(tid)
         x1 = self._walk_target(plan.x_b_k1)
         self._ks(tid, KeyState("x_b,k1", x1))
@@ -657,6 +684,7 @@ class Executive:
         self._hook("walk")
         self._check_log(tid)
         self._check_igniter(tid)
+        self._check_arm(tid)
         self._check_fuel(tid)
         if here.distance(x1) > self.robot.cfg.body.position_tolerance or abs(here.yaw - x1.yaw) > 0.02:
             x1 = self._walk_target(x1)

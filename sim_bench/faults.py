@@ -57,7 +57,7 @@ FAULT_PARAMS: dict[str, dict[str, tuple]] = {
     "motion_failure": {"after_s": _SECONDS},
     "slip": {"dx": _OFFSET, "dy": _OFFSET},
     "slip_flame": {"dx": _OFFSET, "dy": _OFFSET},
-    "arm_fault": {"code": (str, None, None)},
+    "arm_fault": {"code": (str, None, None), "persist": (bool, None, None)},
     "ignition_failure": {"persist": (bool, None, None)},
     "flame_out": {"after_s": _SECONDS},
     "fuel_low": {"level": (float, 0.0, 1.0)},
@@ -215,7 +215,7 @@ class FaultInjector:
             d.arm.hooks.fail_ik = True
             return {"ik_fail"}
         elif k == "arm_fault":
-            d.arm.plant.set_fault(str(p.get("code", "overcurrent")))
+            d.arm.plant.set_fault(str(p.get("code", "overcurrent")), bool(p.get("persist", False)))
         elif k == "ignition_failure":
             d.igniter.hooks.fail_to_light = True
         elif k == "flame_out":

@@ -56,6 +56,7 @@ class ArmPlant:
         self.ref = self.q.copy()
         self.mode = DISABLED
         self.fault: str | None = None
+        self.fault_persists = False  # a fault RESET does not clear (a broken joint, a motor that keeps tripping)
         self.moving = False
         self.targets_applied = 0
         # fault hook: (n, code) -> latch `code` once n more targets have been applied (mid-move)
@@ -83,14 +84,16 @@ class ArmPlant:
             self.mode = STOWING
 
     def reset(self) -> None:
-        if self.mode == FAULT:
+        if self.mode == FAULT and not self.fault_persists:
             self.fault = None
             self.ref = self.q.copy()
             self.mode = DISABLED
 
-    def set_fault(self, code: str) -> None:
-        """Latched fault: the arm holds where it is until RESET (then ENABLE)."""
+    def set_fault(self, code: str, persist: bool = False) -> None:
+        """Latched fault: the arm holds where it is until RESET (then ENABLE); with `persist`,
+        RESET does not clear it."""
         self.fault = code
+        self.fault_persists = persist
         self.mode = FAULT
         self.ref = self.q.copy()
 

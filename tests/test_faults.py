@@ -317,3 +317,27 @@ def test_random_fault_schedules_keep_the_ignition_invariant(core, tmp_path_facto
 @given(seed=st.integers(0, 2**31 - 1))
 def test_random_fault_schedules_slow(core, tmp_path_factory, seed):
     test_random_fault_schedules_keep_the_ignition_invariant.hypothesis.inner_test(core, tmp_path_factory, seed)
+
+
+def test_an_arm_fault_while_stowing_is_reset_and_the_stow_retried(core, tmp_path):
+    """A latched arm fault during a stow was not reset (only `_arm_to` reset): every later target
+    was skipped `arm_stow_failed` without a walk and the run ended 'done', exit 0 (a soak audit:
+    17 of 20 targets). Now the stow resets once and retries, as every arm move does."""
+    result, final, _, log = run_mission(core, tmp_path, [Fault("arm_fault", 1, phase="stow")], trois=THREE)
+    assert not result.aborted and [t.flamed for t in result.targets] == [True] * 3, [t.reason for t in result.targets]
+    msgs = [m.data.message for m in iter_run(log, topics={"/log"})]
+    assert any("while stowing: reset and retry once" in m for m in msgs), msgs
+    assert final["stowed"] and not final["flame_on"]
+
+
+def test_an_arm_fault_a_reset_does_not_clear_aborts_the_mission(core, tmp_path):
+    """A fault still latched after the reset and retry: A is skipped, and before B one more reset
+    fails, so the mission aborts (exit 1) instead of walking to every later target and skipping
+    each at its first arm move (the rest of the field reported as handled, exit 0)."""
+    result, final, _, log = run_mission(core, tmp_path, [Fault("arm_fault", 0, params={"persist": True})], trois=THREE)
+    a, b, c = result.targets
+    assert not a.flamed and a.reason == "arm_motion_failed:overcurrent", a.reason
+    assert result.aborted and "arm: fault latched (overcurrent) after a reset; B and later" in result.aborted, result.aborted
+    assert [b.reason, c.reason] == ["mission_aborted"] * 2 and b.body_moves == 0
+    assert not final["flame_on"] and not final["armed"]
+    assert check_ignition_invariant(log).ok
