@@ -441,6 +441,7 @@ class Executive:
                 self._safe()
                 self._raise_if_fatal(st.reasons, st.estop)
                 raise _Skip(f"interlock:{','.join(st.reasons)}")
+            self._check_log_written(tid)
             fuel_before = float(self.d.igniter.state().fuel)
             self.d.igniter.arm(self.timeouts["arm"])
             res = self._hold(il)
@@ -518,6 +519,20 @@ class Executive:
         err = getattr(self.log, "write_error", None) if self.log else None
         if err:
             raise MissionAborted(f"run log: cannot write ({err}); {tid} and later targets not begun")
+
+    def _check_log_written(self, tid: str) -> None:
+        """Burn only what the log holds: its open chunk (this target's detection, image and key
+        states) is handed to the OS first. A failed write shows only when a chunk is flushed (every
+        0.5 s or 256 KiB), so a disk that filled since the target began let it be flamed with no
+        record (a soak audit: with a 20 kB file limit, the first target walked, looked and burnt
+        unlogged). Raises MissionAborted, the flame never lit."""
+        flush = getattr(self.log, "flush", None)
+        if flush is not None:
+            flush()
+        err = getattr(self.log, "write_error", None) if self.log else None
+        if err:
+            self._safe()
+            raise MissionAborted(f"run log: cannot write ({err}); {tid} not flamed, later targets not begun")
 
     def _check_igniter(self, tid: str) -> None:
         """Begin a target only with an igniter that can light: a fault still latched here is one

@@ -101,6 +101,27 @@ def test_run_whose_log_fails_stops_and_still_writes_its_summary(tmp_path, maps):
     rep = ReadReport()
     msgs = list(iter_run(out / "run.mcap", report=rep))
     assert msgs and not rep.complete, rep
+    # no burn without its record: every flamed target's detection is in the file (the flame
+    # waited for the log's open chunk to be written; before, one target was flamed unrecorded)
+    seen = {m.data.target_id for m in msgs if m.topic == "/detection" and m.data.found}
+    flamed = {t["id"] for t in s["targets"] if t["flamed"]}
+    assert flamed and flamed <= seen, (flamed, seen)
+
+
+def test_a_log_that_cannot_be_written_from_the_start_burns_nothing(tmp_path, maps):
+    """A 20 kB file limit: the log failed before the first target, which was still walked to,
+    looked at and flamed with no record (summary 1/N flamed). Now the flame waits for the log."""
+    import json
+
+    m = tmp_path / "m.yaml"
+    m.write_text(_TWO.replace("TRANSPORT", "inprocess"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "capm_field.cli", "run", str(m), "--out", str(out), "--quiet"], capture_output=True,
+                       text=True, timeout=120, preexec_fn=_limit_file_size(20_000))
+    assert r.returncode == 1 and "Traceback" not in r.stderr, (r.returncode, r.stderr[-3000:])
+    s = json.loads((out / "summary.json").read_text())
+    assert s["aborted"].startswith("MissionAborted: run log: cannot write"), s["aborted"]
+    assert not any(t["flamed"] for t in s["targets"]), s["targets"]
 
 
 # ---- the body's robot side frozen (SIGSTOP) while the flame is on, wire transport --------------------
