@@ -148,8 +148,10 @@ class _Logger:
             self.rec.set_time(TIMELINE, timestamp=np.datetime64(int(t_ns), "ns"))
 
     def log(self, path: str, *archetypes, frame: str = FIELD, static: bool = False) -> None:
-        if path not in self._framed:  # which named frame the entity lives in (Rerun ≥ 0.27)
-            self.rec.log(path, rr.CoordinateFrame(frame), static=True)
+        if path not in self._framed:  # which named frame the entity lives in (Rerun ≥ 0.27), in the
+            # entity's first row: a static row of its own was a second chunk per entity, and a
+            # recording's chunk count is what Rerun's file index cannot hold beyond ~50 000
+            archetypes = (rr.CoordinateFrame(frame), *archetypes)
             self._framed.add(path)
         self.rec.log(path, *archetypes, static=static)
 
@@ -165,10 +167,15 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
         for _, m in msgs[topic]:
             if m.HasField("troi"):
                 trois.setdefault(m.target_id or m.troi.id, (m.troi.x, m.troi.y, m.troi.r))
+    # One entity for all the circles and one for all the centres (labelled by id): an entity per
+    # target and kind made ~11 per target, and a 2 000-target run's recording more chunks than
+    # Rerun's file index holds (the review failed, nothing written)
     lg.at(t0)
-    for tid, (x, y, r) in trois.items():
-        lg.log(f"/review/troi/{_part(tid)}", rr.LineStrips3D([circle(x, y, r)], colors=[COLORS["troi"]], radii=[0.004], labels=[f"TROI {tid}"]))
-        lg.log(f"/review/troi/{_part(tid)}/centre", rr.Points3D([[x, y, 0.01]], colors=[COLORS["troi"]], radii=[0.01]))
+    if trois:
+        xyr = np.array(list(trois.values()), float)
+        lg.log("/review/troi", rr.LineStrips3D([circle(x, y, r) for x, y, r in xyr], colors=[COLORS["troi"]], radii=[0.004],
+                                               labels=[f"TROI {tid}" for tid in trois]))
+        lg.log("/review/troi/centres", rr.Points3D(np.c_[xyr[:, :2], np.full(len(xyr), 0.01)], colors=[COLORS["troi"]], radii=[0.01]))
 
     if data.body_path:
         lg.log("/review/body_path", rr.LineStrips3D([np.asarray(data.body_path)], colors=[COLORS["body_path"]], radii=[0.005]), static=True)
@@ -222,9 +229,17 @@ def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
             lg.log("/camera/image/detection", rr.Clear(recursive=False), frame=IMAGE_PLANE)
             lg.log(f"/review/detection/{_part(tid)}/miss", rr.TextLog(f"{tid}: no MPOI ({m.reason or 'no reason'})", level="WARN"))
 
-    for t, m in msgs[TOPICS["truth_mpoi"]]:
-        lg.at(t)
-        lg.log(f"/review/truth/{_part(m.target_id)}", rr.Points3D([[m.mpoi.x, m.mpoi.y, 0.012]], colors=[COLORS["truth"]], radii=[0.012], labels=["truth"]))
+    # the bench's true centres, all in one entity (logged together at the run's start): at each
+    # time one is given, every one given so far
+    truth: dict[str, tuple[float, float]] = {}
+    given = msgs[TOPICS["truth_mpoi"]]
+    for i, (t, m) in enumerate(given):
+        truth[m.target_id] = (m.mpoi.x, m.mpoi.y)
+        if i + 1 == len(given) or given[i + 1][0] != t:
+            lg.at(t)
+            xy = np.array(list(truth.values()), float)
+            lg.log("/review/truth", rr.Points3D(np.c_[xy, np.full(len(xy), 0.012)], colors=[COLORS["truth"]], radii=[0.012],
+                                                labels=[f"truth {k}" for k in truth]))
 
     _series(lg, msgs)
 

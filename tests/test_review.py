@@ -53,7 +53,8 @@ def test_review_rrd_has_image_transforms_series_and_overlays(run_mcap, tmp_path)
     for series in ("/plots/igniter/flame_on", "/plots/energy/total"):
         assert "Scalars:scalars" in ents[series]
     assert "SeriesLines:names" in ents["/plots/igniter/flame_on"]
-    assert "LineStrips3D:strips" in ents["/review/troi/t00"]
+    assert {"LineStrips3D:strips", "LineStrips3D:labels"} <= ents["/review/troi"]  # every TROI, one entity
+    assert "Points3D:positions" in ents["/review/troi/centres"] and "Points3D:labels" in ents["/review/truth"]
     assert "LineStrips3D:strips" in ents["/review/regions/t00/R_o"]
     assert "Points3D:labels" in ents["/review/key_states/t00"]
     assert "Points3D:positions" in ents["/review/detection/t00"]
@@ -106,8 +107,8 @@ def test_a_run_directory_stands_for_its_log(tmp_path, capsys):
 
 
 def test_target_ids_with_slashes_and_spaces_are_one_entity_each(tmp_path, robot):
-    """TROI ids are free text (a prescan tool's "plot A/3"): review escapes them, so each stays
-    one entity under /review/troi instead of splitting into a path."""
+    """TROI ids are free text (a prescan tool's "plot A/3"): review escapes them, so each target's
+    regions stay one entity under /review/regions instead of splitting into a path."""
     path = tmp_path / "run.mcap"
     with RunLog(path, robot, PinholeCamera.from_config(CameraConfig()), bench=True) as log:
         for k, tid in enumerate(("plot A/3", "W.1")):
@@ -115,8 +116,29 @@ def test_target_ids_with_slashes_and_spaces_are_one_entity_each(tmp_path, robot)
     out = tmp_path / "out.rrd"
     assert review_main([str(path), "--rrd", str(out)]) == 0
     ents = rrd_contents(out)
-    troi = sorted(e for e in ents if e.startswith("/review/troi/") and "LineStrips3D:strips" in ents[e])
-    assert troi == ["/review/troi/W.1", "/review/troi/plot\\ A\\/3"], troi  # escaped: one part each
+    ro = sorted(e for e in ents if e.startswith("/review/regions/") and e.endswith("/R_o"))
+    assert ro == ["/review/regions/W.1/R_o", "/review/regions/plot\\ A\\/3/R_o"], ro  # escaped: one part each
+
+
+def test_review_entities_do_not_grow_by_one_per_target_and_kind(tmp_path, robot):
+    """A 2 000-target run's review failed (Rerun: "TooManyTables", nothing written): ~11 entities
+    per target, each with a static coordinate-frame chunk of its own, were more chunks than Rerun's
+    file index holds. TROIs and the bench truth are one entity each, and an entity's frame rides in
+    its first row."""
+    path = tmp_path / "run.mcap"
+    n = 300
+    with RunLog(path, robot, PinholeCamera.from_config(CameraConfig()), bench=True) as log:
+        for k in range(n):
+            tid = f"T{k:03d}"
+            log.truth_mpoi(10**9, tid, (0.5 * k, 0.1))
+            log.regions(2 * 10**9 + k, tid, TROI(0.5 * k, 0.0, 0.2, tid), [(0.3, 0.6)], [(0.2, 0.5)], None)
+    out = tmp_path / "out.rrd"
+    assert review_main([str(path), "--rrd", str(out)]) == 0
+    ents = rrd_contents(out)
+    review = [e for e in ents if e.startswith("/review/")]
+    assert len(review) <= 2 * n + 5, len(review)  # R_o and R_m per target; TROIs, centres, truth once
+    chunks = sum(1 for c in RrdReader(out).stream() if c.entity_path.startswith("/review/"))
+    assert chunks <= 2 * n + 5, chunks  # one chunk per entity: no separate static frame chunks
 
 
 @pytest.mark.parametrize("make", ["fifo", "missing"])
