@@ -154,6 +154,7 @@ class Executive:
         self._index = 0
         self._directives: set[str] = set()
         self._flamed_at: list[tuple[str, np.ndarray]] = []  # (target id, the MPOI it was flamed at) in this run
+        self._n_skipped = 0  # targets skipped so far (progress lines)
         # fuel budget: a target is begun only if its ξ hold fits above the reserve (FUEL_MARGIN ×
         # the larger of the configured rate and the highest rate measured over this run's holds)
         self.fuel_per_s = fuel_per_s
@@ -218,7 +219,14 @@ class Executive:
 
     def _set_phase(self, i: int, n: int, tid: str, phase: str) -> None:
         self._phase = phase
-        self.progress({"index": i, "total": n, "target": tid, "phase": phase, "energy": self.total_energy})
+        self.progress({"index": i, "total": n, "target": tid, "phase": phase, "energy": self.total_energy,
+                       "flamed": len(self._flamed_at), "skipped": self._n_skipped})
+
+    def _skipped(self, i: int, n: int, tid: str, reason: str) -> None:
+        """A skip, counted and shown to the operator as it happens (not only in the final count)."""
+        self._n_skipped += 1
+        self.progress({"index": i, "total": n, "target": tid, "phase": f"skipped ({reason})", "energy": self.total_energy,
+                       "flamed": len(self._flamed_at), "skipped": self._n_skipped})
 
     def _igniter_state(self, il: IgnitionInterlock | None = None) -> None:
         if not self.log:
@@ -749,6 +757,8 @@ class Executive:
                 self._safe()
                 res.reason, res.branch = s.reason, ("skipped" if not res.flamed else res.branch)
                 self._event("warning", f"{tid}: skipped ({s.reason})", target=tid, reason=s.reason)
+                if not res.flamed:
+                    self._skipped(i, len(results), tid, s.reason)
                 try:
                     self._stow()
                 except _Skip:
@@ -790,6 +800,7 @@ class Executive:
         late = HeldSignals()  # the first interrupt raises; any later one (and all from the end of the targets on) is held
         late.start(raise_first=True)
         try:
+            self._set_phase(0, len(self.trois), "-", "ordering")  # (thousands of targets: seconds before the first)
             ordered = field_order() if field_order else order_trois(self.trois, self.start.xy, self.end.xy)
             results = results_of(ordered)
             if self.log:
@@ -820,6 +831,8 @@ class Executive:
                     if not res.flamed:
                         res.branch = "skipped"
                     self._event("warning", f"{troi.id}: skipped ({s.reason})", target=troi.id, reason=s.reason)
+                    if not res.flamed:
+                        self._skipped(i, len(ordered), troi.id, s.reason)
                     try:
                         self._stow()
                     except _Skip:

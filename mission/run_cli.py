@@ -147,21 +147,38 @@ class _Progress:
         self.enabled = enabled
         self.tty = sys.stderr.isatty()
         self._last = ""
+        self._t0 = time.monotonic()
 
     def __call__(self, s: dict) -> None:
         if not self.enabled:
             return
-        line = f"target {min(s['index'] + 1, s['total'])}/{s['total']} {s['target']:<6} {s['phase']:<20} energy {s['energy']:7.2f}"
-        if self.tty:
+        i, n = s["index"], s["total"]
+        elapsed = time.monotonic() - self._t0
+        # the time left from the targets done so far (none yet: not guessed)
+        eta = f" · left ~{_hms(elapsed / i * (n - i))}" if 0 < i < n else ""
+        line = (f"target {min(i + 1, n)}/{n} {s['target']:<6} {s['phase']:<20} energy {s['energy']:7.2f}"
+                f" · flamed {s.get('flamed', 0)} skipped {s.get('skipped', 0)} · {_hms(elapsed)}{eta}")
+        skip = s["phase"].startswith("skipped")
+        if self.tty and not skip:
             sys.stderr.write("\r" + line.ljust(len(self._last)))
             sys.stderr.flush()
-        elif s["phase"] in ("plan", "done"):
+            self._last = line
+        elif self.tty:  # a skip stays on screen, above the status line
+            sys.stderr.write("\r" + line.ljust(len(self._last)) + "\n")
+            sys.stderr.flush()
+            self._last = ""
+        elif s["phase"] in ("plan", "done", "ordering") or skip:
             print(line, file=sys.stderr)
-        self._last = line
 
     def close(self) -> None:
         if self.enabled and self.tty:
             sys.stderr.write("\n")
+
+
+def _hms(seconds: float) -> str:
+    m, sec = divmod(int(seconds), 60)
+    h, m = divmod(m, 60)
+    return f"{h}:{m:02d}:{sec:02d}" if h else f"{m}:{sec:02d}"
 
 
 def _open_drivers(mission: Mission, robot, trois, seed: int | None, mission_dir: Path):
