@@ -632,10 +632,18 @@ def fuel_warnings(mission: Mission, n_trois: int) -> list[str]:
     before the first target that does not fit)."""
     rate, what = _hold_rate(mission)
     need = hold_fuel(mission.task.xi, rate)
-    holds = holds_left(1.0, mission.igniter.fuel_reserve, need)
+    reserve = mission.igniter.fuel_reserve
+    holds = holds_left(1.0, reserve, need)
     if 1 <= holds < n_trois:
-        return [f"igniter: a full tank is enough for {holds} of {n_trois} targets (a hold needs ~{need:.1%} at {what}, "
-                f"reserve {mission.igniter.fuel_reserve:.1%}); the run stops before the first that does not fit"]
+        # each target needs `need` (the hold with its margin) above the reserve to begin, but a hold
+        # burns need / FUEL_MARGIN at this rate: that many begin before the tank is that low
+        # (an audit: "156 of 500" from `holds` alone, where the run flamed 195)
+        burnt = need / FUEL_MARGIN
+        expected = min(holds_left(1.0 - need + burnt, reserve, burnt), n_trois)
+        about = "all" if expected >= n_trois else f"about {expected}"
+        return [f"igniter: a full tank is enough for {about} of {n_trois} targets at {what} ({holds} if every hold burnt "
+                f"its planned ~{need:.1%}, {FUEL_MARGIN - 1:.0%} above that rate; reserve {reserve:.1%}); "
+                f"the run stops before the first that does not fit"]
     return []
 
 

@@ -160,10 +160,25 @@ def test_fuel_settings_that_never_fire_are_refused(tmp_path, capsys):
     assert rc == 2 and "m.yaml:8: igniter: a full tank cannot begin one hold: a hold needs ~375.0%" in line, line
     # the bench igniter's own rate (1/600 per s): a 99 % reserve leaves room for one hold of two
     rc, err = _validate(tmp_path, TWO.replace("NAME", "f") + "igniter: {fuel_reserve: 0.99}\n", capsys)
-    assert rc == 0 and "warning: igniter: a full tank is enough for 1 of 2 targets" in err, err
+    assert rc == 0 and "warning: igniter: a full tank is enough for about 1 of 2 targets" in err, err
+    assert "(1 if every hold burnt its planned ~0.6%, 25% above that rate; reserve 99.0%)" in err, err
     rc, err = _validate(tmp_path, TWO.replace("NAME", "f") + "igniter: {fuel_reserve: 0.995}\n", capsys)
     assert rc == 2 and "a full tank cannot begin one hold" in _one_line(err), err
 
+
+
+def test_the_fuel_estimate_counts_what_a_hold_burns_not_its_margin(tmp_path):
+    """validate said a full tank was "enough for 156 of 500 targets" where the run flamed 195 (a
+    soak audit): each hold was counted at its planned fuel, 25 % above the rate. Now the count is
+    what begins at the rate (the executive's rule: the planned hold must fit above the reserve)."""
+    from mission.config import fuel_warnings
+
+    m, _ = load_mission(_write(tmp_path, TWO.replace("NAME", "f")))
+    (w,) = fuel_warnings(m, 500)
+    assert "enough for about 195 of 500 targets" in w and "(156 if every hold burnt its planned ~0.6%" in w, w
+    (w,) = fuel_warnings(m, 170)  # more than the margin-counted 156, fewer than 195
+    assert "enough for all of 170 targets" in w, w
+    assert fuel_warnings(m, 150) == []
 
 
 def test_a_vanishing_fuel_rate_covers_every_target(tmp_path, capsys):
