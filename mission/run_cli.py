@@ -347,8 +347,14 @@ def _run(a: argparse.Namespace) -> int:
             _write_new(tmp, json.dumps(summary, indent=1))
             os.replace(tmp, out / "summary.json")
         except OSError as e:  # (a full disk): the run is over, its summary must not be lost
-            tmp.unlink(missing_ok=True)
+            try:
+                tmp.unlink(missing_ok=True)
+            except OSError:
+                pass
             print(f"capm-field run: cannot write {out / 'summary.json'}: {e.strerror or e}; the summary follows on stdout", file=sys.stderr)
+            if not (out / "run.mcap").is_file():  # the directory removed (or replaced) while the run wrote into it
+                print(f"capm-field run: {out / 'run.mcap'} is gone: the output directory was removed during the run, "
+                      "and the run log with it", file=sys.stderr)
             print(json.dumps(summary))
             return 1
         flamed = sum(t.flamed for t in result.targets)

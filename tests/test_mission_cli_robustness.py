@@ -679,3 +679,28 @@ def test_progress_shows_skips_as_they_happen_and_the_time_left(tmp_path, capsys)
     assert len(skip) == 1 and "flamed 0 skipped 1" in skip[0], err
     assert any(line.startswith("target 2/2") and "left ~" in line for line in err), err
     assert any(" done " in line and "flamed 1 skipped 1" in line for line in err), err
+
+
+_REMOVED = """\
+import shutil, sys
+import mission.executive as ex
+real = ex.Executive._check_startup
+def removed(self):
+    real(self)
+    shutil.rmtree({out!r})  # an operator's clean-up script, mid-run
+ex.Executive._check_startup = removed
+from capm_field.cli import main
+sys.exit(main(['run', {mission!r}, '--out', {out!r}, '--quiet']))
+"""
+
+
+def test_an_output_directory_removed_mid_run_is_said_to_have_taken_the_log(tmp_path):
+    """The run went on, printed the summary on stdout (exit 1) and said only that summary.json could
+    not be written: that run.mcap had gone with the directory was not said (a soak audit)."""
+    p = _write(tmp_path, TWO.replace("NAME", "t"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-c", _REMOVED.format(mission=str(p), out=str(out))], capture_output=True, text=True,
+                       timeout=180)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "run.mcap is gone: the output directory was removed during the run" in r.stderr, r.stderr
+    assert json.loads(r.stdout.splitlines()[-1])["targets"], r.stdout
