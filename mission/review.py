@@ -158,7 +158,9 @@ class _Logger:
 
 def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
     lg = _Logger(rec, duration)
-    msgs = data.messages
+    # each topic in time order (stable): an entity's frame rides in its first row, which must then
+    # be its earliest (a foreign or hand-made log's messages may be out of order)
+    msgs = defaultdict(list, {k: sorted(v, key=lambda tm: tm[0]) for k, v in data.messages.items()})
     t0 = data.first_ns or 0
 
     # TROIs: all of them from the run's start, so the field overview shows every weed.

@@ -151,3 +151,24 @@ def test_a_run_log_that_is_not_a_regular_file_is_said_so(tmp_path, make):
         os.mkfifo(p)
     with pytest.raises(UserError, match="not a regular file" if make == "fifo" else "run log not found"):
         check_mcap(p)
+
+
+def test_an_entitys_frame_is_in_its_earliest_row_even_from_an_out_of_order_log(tmp_path, robot):
+    """The frame rides in an entity's first row (not a static chunk of its own): a log whose
+    messages are out of time order must still give the frame at the entity's earliest time, or
+    its earlier rows would be drawn in no frame."""
+    path = tmp_path / "run.mcap"
+    with RunLog(path, robot, PinholeCamera.from_config(CameraConfig()), bench=True) as log:
+        log.regions(3 * 10**9, "A", TROI(1.0, 0.0, 0.2, "A"), [(0.3, 0.6)], [], None)
+        log.regions(2 * 10**9, "A", TROI(1.0, 0.0, 0.2, "A"), [(0.3, 0.7)], [], None)  # written later, earlier time
+    out = tmp_path / "out.rrd"
+    assert review_main([str(path), "--rrd", str(out)]) == 0
+    times, framed = [], []
+    for c in RrdReader(out).stream():
+        if c.entity_path == "/review/regions/A/R_o":
+            rb = c.to_record_batch()
+            t = rb.column("message_log_time").cast("int64").to_pylist()
+            times += t
+            if "CoordinateFrame:frame" in rb.schema.names:
+                framed += [ti for ti, f in zip(t, rb.column("CoordinateFrame:frame").to_pylist()) if f is not None]
+    assert sorted(times) == [2 * 10**9, 3 * 10**9] and framed == [min(times)], (times, framed)
