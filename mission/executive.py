@@ -110,6 +110,9 @@ class MissionResult:
         }
 
 
+STALE_WAIT_S = 1.0  # how long a stale arm state (no fresh CAN state frames) is waited out before it counts as a lost link
+
+
 class Executive:
     def __init__(
         self,
@@ -260,13 +263,13 @@ class Executive:
             return
         r = self.d.arm.stow(self.timeouts["arm"], on_state=self._tf_arm)
         self._tf()
-        if not r.ok and self.d.arm.state().fault:
+        if not r.ok and self._arm_fault():
             # a latched arm fault: reset once and retry, as for any arm move (`_arm_to`)
             self._event("warning", f"arm fault {self.d.arm.state().fault} while stowing: reset and retry once")
             self.d.arm.reset(self.timeouts["arm"])
             r = self.d.arm.stow(self.timeouts["arm"], on_state=self._tf_arm)
             self._tf()
-        if not r.ok and self.d.arm.state().fault:
+        if not r.ok and self._arm_fault():
             # still latched: no target can be reached without walking with the arm out, so every one
             # after would be skipped the same way and the run end "done" (a soak audit: one overcurrent
             # while stowing skipped 17 of 20 targets, exit 0) — the mission aborts instead
@@ -552,14 +555,25 @@ class Executive:
         if fault:
             raise MissionAborted(f"igniter: fault latched ({fault}) after the bounded trials; {tid} and later targets not begun")
 
+    def _arm_fault(self) -> str | None:
+        """The arm's latched fault, or None. A state gone stale (the CAN arm's joint or status
+        frames older than 0.25 s: `state_stale`) is not one a reset clears (the reset would only
+        disable a healthy arm): it is waited out for up to STALE_WAIT_S, then taken as a lost link."""
+        fault = self.d.arm.state().fault
+        deadline = time.monotonic() + STALE_WAIT_S
+        while fault == "state_stale" and time.monotonic() < deadline:
+            time.sleep(0.02)
+            fault = self.d.arm.state().fault
+        if fault == "state_stale" or (fault and "link_lost" in fault):
+            raise LinkLost(f"arm link lost ({fault})")
+        return fault
+
     def _check_arm(self, tid: str) -> None:
         """Begin a target only with an arm that can move: a fault still latched here is one the
         last target's reset and retry left; one more reset, and if it holds, every later target
         would be walked to and skipped at its first arm move (a run ending 'done', exit 0).
         Raises MissionAborted."""
-        fault = self.d.arm.state().fault
-        if fault and "link_lost" in fault:
-            raise LinkLost(f"arm link lost ({fault})")
+        fault = self._arm_fault()
         if fault:
             self._event("warning", f"arm fault {fault} latched before {tid}: reset once")
             self.d.arm.reset(self.timeouts["arm"])
@@ -798,59 +812,67 @@ class Executive:
         self._tid, self._moves, self._e_start = "", 0, 0.0
         aborted = interrupted = None
         late = HeldSignals()  # the first interrupt raises; any later one (and all from the end of the targets on) is held
-        late.start(raise_first=True)
-        try:
-            self._set_phase(0, len(self.trois), "-", "ordering")  # (thousands of targets: seconds before the first)
-            ordered = field_order() if field_order else order_trois(self.trois, self.start.xy, self.end.xy)
-            results = results_of(ordered)
-            if self.log:
-                for t in ordered:
-                    if t.id in self.truth:
-                        self.log.truth_mpoi(self.now_ns(), t.id, tuple(self.truth[t.id]))
-            self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
-            self._check_startup()
-            if field_order is not None:
-                by_id = {r.id: r for r in results}
-                visited = self._run_field(by_id)
-                results = [by_id[t] for t in visited] + [r for r in results if r.id not in visited]
-                ordered = [next(t for t in self.trois if t.id == r.id) for r in results]
-            for i, troi in enumerate(ordered if field_order is None else []):
-                self._index = i
-                x_kmax = x_kmax_of(ordered, i, self.end)
-                res = results[i]
-                e0 = self.total_energy
-                try:
-                    self._target(i, len(ordered), troi, x_kmax, res)
-                    self._set_phase(i, len(ordered), troi.id, "walk to x_kmax")
-                    self._walk(x_kmax)
-                    self._moves += 1
-                    self._ks(troi.id, KeyState("x_kmax", self.d.body.state().pose))
-                except _Skip as s:
-                    self._safe()
-                    res.reason = s.reason
-                    if not res.flamed:
-                        res.branch = "skipped"
-                    self._event("warning", f"{troi.id}: skipped ({s.reason})", target=troi.id, reason=s.reason)
-                    if not res.flamed:
-                        self._skipped(i, len(ordered), troi.id, s.reason)
+        try:  # (outer: a stop signal that lands while an abort below is being handled, before `late` holds them)
+            try:
+                late.start(raise_first=True)
+                self._set_phase(0, len(self.trois), "-", "ordering")  # (thousands of targets: seconds before the first)
+                ordered = field_order() if field_order else order_trois(self.trois, self.start.xy, self.end.xy)
+                results = results_of(ordered)
+                if self.log:
+                    for t in ordered:
+                        if t.id in self.truth:
+                            self.log.truth_mpoi(self.now_ns(), t.id, tuple(self.truth[t.id]))
+                self._event("info", f"mission start: {len(ordered)} targets, planner {self.planner.name}", order=[t.id for t in ordered])
+                self._check_startup()
+                if field_order is not None:
+                    by_id = {r.id: r for r in results}
+                    visited = self._run_field(by_id)
+                    results = [by_id[t] for t in visited] + [r for r in results if r.id not in visited]
+                    ordered = [next(t for t in self.trois if t.id == r.id) for r in results]
+                for i, troi in enumerate(ordered if field_order is None else []):
+                    self._index = i
+                    x_kmax = x_kmax_of(ordered, i, self.end)
+                    res = results[i]
+                    e0 = self.total_energy
                     try:
-                        self._stow()
-                    except _Skip:
-                        pass
-                finally:  # also when the mission aborts on this target: what it spent is reported
-                    res.energy = self.total_energy - e0
-                    res.body_moves = self._moves
-        except (LinkLost, EStopActive, MissionAborted) as e:
-            aborted = f"{type(e).__name__}: {e}"
-        except DriverError as e:
-            aborted = f"{type(e).__name__}: {e}"
-        except Exception as e:  # noqa: BLE001 - a software fault mid-mission (a planner on a degenerate
-            # robot/task): the robot is made safe and the run recorded like any abort, traceback in the log
-            aborted = f"internal error: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
-            self._event("error", "".join(traceback.format_exception(e))[-8000:])
-        except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM or SIGHUP (`late` raises the first): ended like an
-            interrupted = str(e) or "SIGINT"  # abort and recorded; a second one is noted, not raised
-            aborted = f"interrupted ({interrupted})"
+                        self._target(i, len(ordered), troi, x_kmax, res)
+                        self._set_phase(i, len(ordered), troi.id, "walk to x_kmax")
+                        self._walk(x_kmax)
+                        self._moves += 1
+                        self._ks(troi.id, KeyState("x_kmax", self.d.body.state().pose))
+                    except _Skip as s:
+                        self._safe()
+                        res.reason = s.reason
+                        if not res.flamed:
+                            res.branch = "skipped"
+                        self._event("warning", f"{troi.id}: skipped ({s.reason})", target=troi.id, reason=s.reason)
+                        if not res.flamed:
+                            self._skipped(i, len(ordered), troi.id, s.reason)
+                        try:
+                            self._stow()
+                        except _Skip:
+                            pass
+                    finally:  # also when the mission aborts on this target: what it spent is reported
+                        res.energy = self.total_energy - e0
+                        res.body_moves = self._moves
+            except (LinkLost, EStopActive, MissionAborted) as e:
+                late.start()  # (any signal from here on is noted)
+                aborted = f"{type(e).__name__}: {e}"
+            except DriverError as e:
+                late.start()  # (any signal from here on is noted)
+                aborted = f"{type(e).__name__}: {e}"
+            except Exception as e:  # noqa: BLE001 - a software fault mid-mission (a planner on a degenerate
+                # robot/task): the robot is made safe and the run recorded like any abort, traceback in the log
+                late.start()  # (any signal from here on is noted)
+                aborted = f"internal error: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
+                self._event("error", "".join(traceback.format_exception(e))[-8000:])
+            except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM or SIGHUP (`late` raises the first): ended like an
+                interrupted = str(e) or "SIGINT"  # abort and recorded; a second one is noted, not raised
+                aborted = f"interrupted ({interrupted})"
+        except KeyboardInterrupt as e:
+            late.start()
+            interrupted = str(e) or "SIGINT"
+            aborted = f"{aborted}; interrupted ({interrupted})" if aborted else f"interrupted ({interrupted})"
         except BaseException:  # not ours to end (SystemExit …): only made safe
             late.stop()
             self._safe()

@@ -154,6 +154,8 @@ class _Logger:
             archetypes = (rr.CoordinateFrame(frame), *archetypes)
             self._framed.add(path)
         self.rec.log(path, *archetypes, static=static)
+        if any(isinstance(a, rr.Clear) for a in archetypes):
+            self._framed.discard(path)  # a Clear hides what came before it, the frame too: the next row gives it again
 
 
 def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:

@@ -341,3 +341,34 @@ def test_an_arm_fault_a_reset_does_not_clear_aborts_the_mission(core, tmp_path):
     assert [b.reason, c.reason] == ["mission_aborted"] * 2 and b.body_moves == 0
     assert not final["flame_on"] and not final["armed"]
     assert check_ignition_invariant(log).ok
+
+
+def test_a_briefly_stale_arm_state_is_waited_out_not_reset_into_an_abort(core, tmp_path):
+    """The CAN arm reports `state_stale` while its state frames are > 0.25 s old; its reset only
+    waits for the gateway's fault (none) and disables a healthy arm. The check before a target
+    reset it and, still reading the stale state, aborted the mission over a 0.3 s stall (a
+    review). A stale state is now waited out (and taken as a lost link only after 1 s)."""
+    import dataclasses
+
+    trois = [TROI(1.0, 0.3, 0.22, "A"), TROI(2.3, 0.9, 0.25, "B")]
+    d = open_bench_drivers(core.robot, core.task, trois, START, 1)
+    arm, stall, resets = d.arm, {"until": 0.0}, []
+    real_state, real_reset = arm.state, arm.reset
+
+    def state():
+        s = real_state()
+        return dataclasses.replace(s, fault="state_stale") if time.monotonic() < stall["until"] and not s.fault else s
+
+    def hook(i, phase, _el=0.0):
+        if i == 1 and phase == "walk" and not stall["until"]:
+            stall["until"] = time.monotonic() + 0.3
+        return set()
+
+    arm.state = state
+    arm.reset = lambda timeout=1.0: (resets.append(1), real_reset(timeout))[1]
+    try:
+        r = Executive(trois, START, SE2(3.0, 0.0, 0.0), d, core, make_planner("c", core), hook=hook).run()
+    finally:
+        d.close()
+    assert stall["until"] and not r.aborted, r.aborted
+    assert [t.flamed for t in r.targets] == [True, True] and not resets, ([t.reason for t in r.targets], resets)

@@ -704,3 +704,54 @@ def test_an_output_directory_removed_mid_run_is_said_to_have_taken_the_log(tmp_p
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
     assert "run.mcap is gone: the output directory was removed during the run" in r.stderr, r.stderr
     assert json.loads(r.stdout.splitlines()[-1])["targets"], r.stdout
+
+
+_DURING_ABORT = """\
+import os, signal, sys, time
+from capm_field.config import RobotConfig, TaskConfig, ReachabilityConfig
+from capm_field.robot_model import RobotModel
+from capm_field.reachability import get_maps
+from capm_field.planners import PlanningCore, make_planner
+from capm_field.geometry import SE2
+from capm_field.keystates import TROI
+from mission.executive import Executive
+from sim_bench.bench_drivers import open_bench_drivers
+
+robot, task = RobotModel(RobotConfig()), TaskConfig(gamma=0.5)
+core = PlanningCore(robot, get_maps(robot, task, ReachabilityConfig()), task)
+trois, start = [TROI(1.0, 0.3, 0.22, "A"), TROI(2.3, 0.9, 0.25, "B")], SE2(0, 0, 0)
+d = open_bench_drivers(robot, task, trois, start, seed=1)
+before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+
+def hook(i, phase, el=0.0):
+    if phase == "flame" and el >= 0.05:
+        raise RuntimeError("software fault mid-flame")
+    return set()
+
+class Ex(Executive):
+    sent = False
+    def _event(self, level, msg, **kw):
+        if level == "error" and not Ex.sent:  # the traceback event of the software-fault abort
+            Ex.sent = True
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)
+        super()._event(level, msg, **kw)
+
+r = Ex(trois, start, SE2(3.0, 0, 0), d, core, make_planner("c", core), hook=hook).run()
+after = {s: signal.getsignal(s) for s in before}
+print("RESULT", r.interrupted, "|", r.aborted, "|", after == before, "|", d.igniter.state().flame_on)
+d.close()
+"""
+
+
+def test_a_stop_signal_while_an_abort_is_handled_still_ends_the_run_and_restores_the_handlers(tmp_path):
+    """A SIGTERM landing while the executive handled a software fault (writing its traceback event)
+    escaped the run: no ending, and the signal handlers stayed bound to the executive's, so a later
+    Ctrl-C was only noted (a review of the change that made them held for the whole mission)."""
+    r = subprocess.run([sys.executable, "-c", _DURING_ABORT], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-3000:]
+    line = [x for x in r.stdout.splitlines() if x.startswith("RESULT")][0]
+    interrupted, aborted, restored, flame_on = (v.strip() for v in line[len("RESULT"):].split("|"))
+    # the abort's ending holds the signal (noted, "already stopping") and finishes; the handlers are the ones before
+    assert interrupted == "None" and aborted == "internal error: RuntimeError: software fault mid-flame", line
+    assert "already stopping" in r.stderr and restored == "True" and flame_on == "False", (line, r.stderr[-2000:])

@@ -172,3 +172,23 @@ def test_an_entitys_frame_is_in_its_earliest_row_even_from_an_out_of_order_log(t
             if "CoordinateFrame:frame" in rb.schema.names:
                 framed += [ti for ti, f in zip(t, rb.column("CoordinateFrame:frame").to_pylist()) if f is not None]
     assert sorted(times) == [2 * 10**9, 3 * 10**9] and framed == [min(times)], (times, framed)
+
+
+def test_a_cleared_image_overlay_gets_its_frame_again(tmp_path, robot):
+    """A miss clears `/camera/image/detection`; a Clear hides every earlier component of the
+    entity, its frame (now in its first row, no longer static) too, so the next detection must give
+    the frame again or it is drawn in no frame (a review)."""
+    path = tmp_path / "run.mcap"
+    with RunLog(path, robot, PinholeCamera.from_config(CameraConfig()), bench=True) as log:
+        for k, pixel in enumerate(((600.0, 300.0), None, (610.0, 320.0))):
+            log.detection(10**9 * (k + 1), "A", pixel, 0.9 if pixel else 0.0, None if pixel else "no_plant",
+                          (1.0, 0.0) if pixel else None)
+    out = tmp_path / "out.rrd"
+    assert review_main([str(path), "--rrd", str(out)]) == 0
+    framed = []
+    for c in RrdReader(out).stream():
+        if c.entity_path == "/camera/image/detection" and "CoordinateFrame:frame" in c.to_record_batch().schema.names:
+            rb = c.to_record_batch()
+            framed += [t for t, f in zip(rb.column("message_log_time").cast("int64").to_pylist(),
+                                         rb.column("CoordinateFrame:frame").to_pylist()) if f is not None]
+    assert sorted(framed) == [10**9, 3 * 10**9], framed
