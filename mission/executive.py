@@ -225,11 +225,21 @@ class Executive:
         self.progress({"index": i, "total": n, "target": tid, "phase": phase, "energy": self.total_energy,
                        "flamed": len(self._flamed_at), "skipped": self._n_skipped})
 
-    def _skipped(self, i: int, n: int, tid: str, reason: str) -> None:
-        """A skip, counted and shown to the operator as it happens (not only in the final count)."""
-        self._n_skipped += 1
-        self.progress({"index": i, "total": n, "target": tid, "phase": f"skipped ({reason})", "energy": self.total_energy,
-                       "flamed": len(self._flamed_at), "skipped": self._n_skipped})
+    def _skip(self, i: int, n: int, tid: str, res: TargetResult, reason: str) -> None:
+        """A target given up (both visit loops): flame off, the reason recorded, logged and (unless it
+        was flamed already) counted and shown to the operator as it happens, then the arm stowed if it can be."""
+        self._safe()
+        res.reason = reason
+        self._event("warning", f"{tid}: skipped ({reason})", target=tid, reason=reason)
+        if not res.flamed:
+            res.branch = "skipped"
+            self._n_skipped += 1
+            self.progress({"index": i, "total": n, "target": tid, "phase": f"skipped ({reason})", "energy": self.total_energy,
+                           "flamed": len(self._flamed_at), "skipped": self._n_skipped})
+        try:
+            self._stow()
+        except _Skip:
+            pass
 
     def _igniter_state(self, il: IgnitionInterlock | None = None) -> None:
         if not self.log:
@@ -768,15 +778,7 @@ class Executive:
             try:
                 self._field_target(i, len(results), plan, res)
             except _Skip as s:
-                self._safe()
-                res.reason, res.branch = s.reason, ("skipped" if not res.flamed else res.branch)
-                self._event("warning", f"{tid}: skipped ({s.reason})", target=tid, reason=s.reason)
-                if not res.flamed:
-                    self._skipped(i, len(results), tid, s.reason)
-                try:
-                    self._stow()
-                except _Skip:
-                    pass
+                self._skip(i, len(results), tid, res, s.reason)
             finally:  # also when the mission aborts on this target: what it spent is reported
                 res.energy = self.total_energy - e0
                 res.body_moves = self._moves
@@ -841,24 +843,11 @@ class Executive:
                         self._moves += 1
                         self._ks(troi.id, KeyState("x_kmax", self.d.body.state().pose))
                     except _Skip as s:
-                        self._safe()
-                        res.reason = s.reason
-                        if not res.flamed:
-                            res.branch = "skipped"
-                        self._event("warning", f"{troi.id}: skipped ({s.reason})", target=troi.id, reason=s.reason)
-                        if not res.flamed:
-                            self._skipped(i, len(ordered), troi.id, s.reason)
-                        try:
-                            self._stow()
-                        except _Skip:
-                            pass
+                        self._skip(i, len(ordered), troi.id, res, s.reason)
                     finally:  # also when the mission aborts on this target: what it spent is reported
                         res.energy = self.total_energy - e0
                         res.body_moves = self._moves
-            except (LinkLost, EStopActive, MissionAborted) as e:
-                late.start()  # (any signal from here on is noted)
-                aborted = f"{type(e).__name__}: {e}"
-            except DriverError as e:
+            except (LinkLost, EStopActive, MissionAborted, DriverError) as e:
                 late.start()  # (any signal from here on is noted)
                 aborted = f"{type(e).__name__}: {e}"
             except Exception as e:  # noqa: BLE001 - a software fault mid-mission (a planner on a degenerate
