@@ -1,4 +1,4 @@
-"""`capm-field review RUN.mcap [--rrd FILE] [--web]`: open a run log in Rerun.
+"""`capm-field review RUN.mcap [--rrd FILE] [--web] [--targets A-B]`: open a run log in Rerun.
 
 Rerun loads the MCAP natively (transforms, URDF, image, calibration, text log); this module adds
 what Rerun cannot draw from our custom protobuf messages, as Rerun archetypes in the `field`
@@ -23,6 +23,7 @@ import sys
 import tempfile
 import uuid
 import warnings
+from array import array
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,8 @@ from capm_field.errors import UserError, check_output, same_file, terminal_safe
 
 from .runlog import PROTO_TOPICS, SCHEMAS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
+from .review_parts import PART_TARGETS, parse_targets, target_order
+from .review_parts import select as select_part
 from .runlog_schema import foreign_problem
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
@@ -82,8 +85,12 @@ class RunData:
     last_ns: int | None = None
     messages: dict[str, list] = field(default_factory=lambda: defaultdict(list))  # topic -> [(t, msg)]
     body_path: list[tuple[float, float, float]] = field(default_factory=list)
+    body_times: array = field(default_factory=lambda: array("q"))  # log time of each body_path point
     report: ReadReport = field(default_factory=ReadReport)
     imported: int | None = None  # messages handed to Rerun's MCAP importer (set by `write_rrd`)
+    # every message read, by topic: log times and record places (`RunMessage.record`), to pick a part
+    index: dict[str, tuple[array, array]] = field(default_factory=dict)
+    part: "Part | None" = None  # set when only some of the run's targets are reviewed
 
 
 def _body_poses(msg: Any) -> list[tuple[float, float, float]]:
@@ -118,8 +125,12 @@ def load_run(path: Path) -> RunData:
                 data.report.skip(m.topic, f"{want} with other fields: {type(e).__name__}: {e}", m.record)
                 continue
             data.body_path.extend(poses)
+            data.body_times.extend([m.log_time] * len(poses))
         elif m.topic in _CUSTOM:
             data.messages[m.topic].append((m.log_time, m.data))
+        times, records = data.index.setdefault(m.topic, (array("q"), array("q")))
+        times.append(m.log_time)
+        records.append(m.record)
         data.first_ns = m.log_time if data.first_ns is None else min(data.first_ns, m.log_time)
         data.last_ns = m.log_time if data.last_ns is None else max(data.last_ns, m.log_time)
     if data.report.messages == 0:
@@ -327,13 +338,15 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
         with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
             source = mcap
             rep = data.report
-            if not rep.complete or rep.damaged or not rep.has_summary or rep.skipped_records:
+            if data.part or not rep.complete or rep.damaged or not rep.has_summary or rep.skipped_records:
                 # A crash or damaged file: Rerun's own recovery (recover=True) drops channels whose
                 # message index was torn, so hand it a finalised copy of exactly what our reader read.
                 # Payloads we could not decode are left out: on one, Rerun's importer logs an error
                 # and its file sink then fails to finish the recording (no footer: unreadable).
+                # A part of a long run (`--targets`) is such a copy of the part's messages only.
                 source = Path(tmp) / "salvaged.mcap"
-                data.imported = salvage(mcap, source, drop=rep.skipped_records).messages
+                keep = data.part.keep if data.part else None
+                data.imported = salvage(mcap, source, drop=rep.skipped_records, keep=keep).messages
             else:
                 data.imported = rep.messages
             try:
@@ -341,11 +354,12 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
                 rr.send_chunks(reader.stream(), recording=rec)
             except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
                 raise UserError(f"Rerun cannot read {mcap}: {e}") from e
-        rec.send_recording_name(mcap.parent.name + "/" + mcap.name)
+        which = f" (targets {data.part.first}–{data.part.last})" if data.part else ""
+        rec.send_recording_name(mcap.parent.name + "/" + mcap.name + which)
         log_extras(rec, data, duration)
         rec.flush()
         rec.disconnect()
-        _check_rrd(part, out)
+        _check_rrd(part, out, len(data.part.ids) if data.part else len(target_order(data)[0]))
         os.replace(part, out)
     except BaseException:  # incl. Ctrl-C: the partial recording goes, `out` is untouched
         rec.disconnect()
@@ -357,9 +371,10 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
     return data
 
 
-def _check_rrd(part: Path, out: Path) -> None:
+def _check_rrd(part: Path, out: Path, targets: int = 0) -> None:
     """Rerun's file sink reports a recording it could not finish only in its log, so open the
-    written file's manifest (written last, ~40 ms) before it replaces `out`."""
+    written file's manifest (written last, ~40 ms) before it replaces `out`. `targets`: how many the
+    recording holds (over ~1 000, the hint to review fewer at once)."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "no footer/manifest": the error below says it
@@ -367,7 +382,8 @@ def _check_rrd(part: Path, out: Path) -> None:
     except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
         why = ("no footer: its file sink failed to end the stream, see Rerun's error above" if "footer" in str(e)
                else " ".join(str(e).replace(str(part), "").split())[:200])
-        raise UserError(f"--rrd {out}: Rerun did not finish the recording ({why}); nothing written") from None
+        hint = f"; {targets} targets: review fewer at once with --targets A-B (docs/log.md)" if targets > 1000 else ""
+        raise UserError(f"--rrd {out}: Rerun did not finish the recording ({why}); nothing written{hint}") from None
 
 
 def _check_rrd_is_not_the_log(run: str, rrd: Path) -> None:
@@ -415,10 +431,29 @@ def _run_child(cmd: list[str]) -> int:
 _port = count(1, 65535)
 
 
+def _part_of(data: RunData, targets: tuple[int, int] | None) -> RunData:
+    """The part of the run to review: `--targets`, else the whole run up to PART_TARGETS targets,
+    else its first PART_TARGETS (said on stderr, with the option for the next part)."""
+    if targets is None:
+        n = len(target_order(data)[0])
+        if n <= PART_TARGETS:
+            return data
+        targets = (0, PART_TARGETS - 1)
+        print(f"capm-field review: note: the run holds {n} targets, more than Rerun shows at once (docs/log.md): "
+              f"reviewing targets 0–{PART_TARGETS - 1}; --targets {PART_TARGETS}-{min(n, 2 * PART_TARGETS) - 1} for the next part",
+              file=sys.stderr)
+    sub, part = select_part(data, *targets)
+    print(terminal_safe(f"capm-field review: {part.describe()}"), file=sys.stderr)
+    return sub
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="capm-field review", description=__doc__.splitlines()[0])
     ap.add_argument("run", type=cli_path, help="run log (run.mcap) or its run directory, also one cut short by a crash")
     ap.add_argument("--rrd", help="write a Rerun recording to this file (headless, no viewer)")
+    ap.add_argument("--targets", metavar="A-B", type=parse_targets,
+                    help=f"review only the targets at positions A..B (0-based, in the order the run began them); "
+                         f"a run of more than {PART_TARGETS} is reviewed {PART_TARGETS} at a time, the first part by default")
     ap.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of the native viewer")
     ap.add_argument("--web-port", type=_port, default=9090, help="HTTP port of the web viewer (default 9090)")
     ap.add_argument("--grpc-port", type=_port, default=9876, help="gRPC port the web viewer reads from (default 9876)")
@@ -440,10 +475,12 @@ def main(argv: list[str] | None = None) -> int:
     rep = data.report
     for note in rep.notes(mcap):
         print(f"capm-field review: note: {terminal_safe(note)}", file=sys.stderr)
+    data = _part_of(data, args.targets)
     if args.rrd and not args.web:
         write_rrd(mcap, args.rrd, data)
         skipped = f"; {rep.undecodable} skipped, see the note above" if rep.undecodable else ""
-        print(f"wrote {args.rrd} ({data.imported} messages{skipped})")
+        part = f"; {data.part.describe()}" if data.part else ""
+        print(terminal_safe(f"wrote {args.rrd} ({data.imported} messages{skipped}{part})"))
         return 0
 
     with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:

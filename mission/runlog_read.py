@@ -409,13 +409,15 @@ def iter_run(path: str | Path, topics: set[str] | None = None, report: ReadRepor
         yield RunMessage(channel.topic, msg.log_time, schema.name if schema else "", data, report.records - 1)
 
 
-def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = ()) -> ReadReport:
+def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = (), keep: Collection[int] | None = None) -> ReadReport:
     """Copy every readable record of a (crash-truncated) log into a finalised MCAP at `dst`.
 
     Bytes are copied, not re-encoded. Tools that insist on a summary and complete message
     indexes (Rerun's importer drops channels whose index was torn) read the copy instead.
     `drop`: Message records left out, by place (`RunMessage.record`, `ReadReport.skipped_records`):
     payloads our reader could not decode, which stop Rerun's importer from finishing a recording.
+    `keep`: if given, only these Message records are copied (a part of a long run, `review --targets`);
+    the others are neither copied nor counted.
     """
     p = check_mcap(src)
     report = ReadReport()
@@ -437,6 +439,8 @@ def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = ()) -> Rea
                 report.orphans += 1
             elif isinstance(rec, Message) and report.records - 1 in drop:
                 report.undecodable += 1
+            elif isinstance(rec, Message) and keep is not None and report.records - 1 not in keep:
+                continue
             elif isinstance(rec, Message):
                 if rec.channel_id not in channel_ids:
                     ch = channels[rec.channel_id]

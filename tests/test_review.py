@@ -192,3 +192,48 @@ def test_a_cleared_image_overlay_gets_its_frame_again(tmp_path, robot):
             framed += [t for t, f in zip(rb.column("message_log_time").cast("int64").to_pylist(),
                                          rb.column("CoordinateFrame:frame").to_pylist()) if f is not None]
     assert sorted(framed) == [10**9, 3 * 10**9], framed
+
+
+def _images_in(path: Path) -> int:
+    return sum(c.num_rows for c in RrdReader(path).stream()
+               if c.entity_path == "/camera/image" and "EncodedImage:blob" in c.to_record_batch().schema.names)
+
+
+def test_a_part_of_a_long_run_is_reviewed_with_the_robot_and_only_its_targets(tmp_path, robot, capsys, monkeypatch):
+    """Rerun cannot hold a run of thousands of targets (its file index fails past ~50 000 chunks,
+    nothing written): `--targets A-B` reviews a part, the robot's description (written once at the
+    start) included, and a run longer than PART_TARGETS is reviewed its first part by default."""
+    import mission.review as review
+
+    path = tmp_path / "run.mcap"
+    with RunLog(path, robot, PinholeCamera.from_config(CameraConfig()), bench=True) as log:
+        synthetic_mission(log, n_targets=6, seconds_per_target=1.0, images_per_target=1, width=320, height=180)
+    whole, part = tmp_path / "whole.rrd", tmp_path / "part.rrd"
+    assert review_main([str(path), "--rrd", str(whole)]) == 0
+    assert review_main([str(path), "--rrd", str(part), "--targets", "2-3"]) == 0
+    assert "targets 2–3 of 6 (t02 … t03)" in capsys.readouterr().out
+    ents = rrd_contents(part)
+    assert sorted(e.split("/")[3] for e in ents if e.startswith("/review/regions/")) == ["t02", "t02", "t03", "t03"]
+    assert sorted(e for e in ents if e.startswith("/review/key_states/") and e.count("/") == 3) == [
+        "/review/key_states/t02", "/review/key_states/t03"]
+    assert any(e.startswith("/z1_description") for e in ents)  # the URDF, logged before the part began
+    assert "Points3D:labels" in ents["/review/truth"]  # truth given at its target's time, kept by target
+    assert _images_in(whole) == 6 and _images_in(part) == 2
+
+    capsys.readouterr()
+    monkeypatch.setattr(review, "PART_TARGETS", 4)  # a run longer than a part: its first part, said so
+    assert review_main([str(path), "--rrd", str(part)]) == 0
+    err = capsys.readouterr().err
+    assert "holds 6 targets" in err and "reviewing targets 0–3" in err and "--targets 4-5" in err, err
+    assert _images_in(part) == 4
+
+
+@pytest.mark.parametrize("spec, why", [("3-1", "after the last"), ("x", "give A-B"), ("9", "holds 6 targets")])
+def test_a_bad_part_is_one_line(tmp_path, robot, capsys, spec, why):
+    path = tmp_path / "run.mcap"
+    with RunLog(path, robot, PinholeCamera.from_config(CameraConfig()), bench=True) as log:
+        synthetic_mission(log, n_targets=6, seconds_per_target=0.5, images_per_target=1, width=320, height=180)
+    assert cli.main(["review", str(path), "--rrd", str(tmp_path / "x.rrd"), "--targets", spec]) == 2
+    err = capsys.readouterr().err
+    assert why in err and err.count("\n") == 1, err
+    assert not (tmp_path / "x.rrd").exists()
