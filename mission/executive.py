@@ -27,7 +27,7 @@ from capm_field import energy
 from capm_field.arm_poses import ArmSolution, ViewSolver, flame_solution
 from capm_field.camera import PinholeCamera
 from capm_field.detector import detect_centre, roi_from_troi
-from capm_field.geometry import SE2
+from capm_field.geometry import SE2, wrap_angle
 from capm_field.keystates import TROI, KeyState, Plan
 from capm_field.planners import BasePlanner, PlanningCore
 from capm_field.reachability import FlameSolver
@@ -369,17 +369,23 @@ class Executive:
         """Arm to an NSV pose, capture, detect (the target, and `also` TROIs seen in the same
         image); one re-observation from an adjusted pose. Returns (MPOI or None, also_seen)."""
         also_seen: dict[str, tuple[float, float]] = {}
+        planned = body
         for attempt in range(2):
             self._hook("observe")
+            body = self._where_now(tid, planned, "the view")
             sol = None
             if self._take("ik_fail"):
                 sol = None
             elif view_q is not None and attempt == 0:
-                here = self.d.body.state().pose  # the planned view, if it still holds from where we stand
-                ok, area, T_cam = self.view.nsv(here, np.asarray(view_q, float), np.array(troi.xy), r_eff)
+                # the planned view, if it still holds from where we stand
+                ok, area, T_cam = self.view.nsv(body, np.asarray(view_q, float), np.array(troi.xy), r_eff)
                 sol = ArmSolution(np.asarray(view_q, float), T_cam, {"area_ratio": area}) if ok else None
             if sol is None and not (attempt == 0 and "ik_fail" in self._directives):
                 sol = self.view.solve(body, troi.xy, r_eff, variant=attempt)
+                if sol is None and body is not planned:  # pushed out of the view's reach: back where it was to stand
+                    self._event("warning", f"{tid}: no NSV arm pose from where the body was pushed to; walking back", target=tid)
+                    body = self._walk_target(planned, forced=True)
+                    sol = self.view.solve(body, troi.xy, r_eff, variant=attempt)
             if sol is None:
                 self._event("warning", f"{tid}: no NSV arm pose from here (attempt {attempt + 1})", target=tid)
                 continue
@@ -647,9 +653,9 @@ class Executive:
         if self.log:
             self.log.regions(self.now_ns(), tid, troi, list(self.core.ro(troi.r).intervals), list(self.core.rm.intervals), tuple(mpoi))
         self._check_not_flamed(tid, mpoi)
-        body = x1
-        upper = self.planner.name != "b" and bool(self.core.regions.in_R_m(x1, mpoi))
-        if upper and flame_solution(self.robot, self.flame, self.core.maps, x1, tuple(mpoi)) is None:
+        body = self._where_now(tid, x1)
+        upper = self.planner.name != "b" and bool(self.core.regions.in_R_m(body, mpoi))
+        if upper and flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi)) is None:
             upper = False  # the map says yes but IK from the actual pose says no: reposition
         res.branch = "upper" if upper else "lower"
         if not upper:
@@ -667,6 +673,19 @@ class Executive:
             else:
                 raise _Skip("no_flame_pose_after_replan")
         self._flame_stow(i, n, tid, body, mpoi, res)
+
+    def _where_now(self, tid: str, planned: SE2, what: str = "the flame pose") -> SE2:
+        """The body's pose for an arm solve: `planned` (where it arrived) unless it has moved
+        since by more than the placement tolerance (pushed or slid while the arm worked), then
+        where it stands. An arm pose solved for where the body was looks or aims beside the weed
+        (and the interlock, which checks from the measured pose, would refuse the flame)."""
+        here = self.d.body.state().pose
+        tol = self.robot.cfg.body.position_tolerance
+        if here.distance(planned) <= tol and abs(float(wrap_angle(here.yaw - planned.yaw))) <= 0.02:
+            return planned
+        self._event("warning", f"{tid}: the body moved {here.distance(planned):.3f} m since it arrived; "
+                               f"{what} is solved from where it stands", target=tid)
+        return here
 
     def _check_not_flamed(self, tid: str, mpoi: np.ndarray) -> None:
         """Skip a target whose detected centre is one this run has flamed already (within
@@ -753,8 +772,11 @@ class Executive:
         self._check_not_flamed(tid, mpoi)
         out = fp.after_observation(plan, mpoi)
         res.branch = out.branch
-        body = x1
+        body = self._where_now(tid, x1)
         k3 = next((k for k in out.key_states if k.label == "x_b,k3"), None)
+        if k3 is None and body is not x1 and flame_solution(self.robot, self.flame, self.core.maps, body, tuple(mpoi)) is None:
+            # moved since the look (pushed) out of the flame pose's reach: back to where it looked from
+            k3 = KeyState("x_b,k3", x1)
         if k3 is not None:
             self._set_phase(i, n, tid, "reposition x_b,k3")
             self._ks(tid, k3)

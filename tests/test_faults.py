@@ -28,7 +28,7 @@ START = SE2(0.0, 0.0, 0.0)
 END = SE2(2.0, 0.0, 0.0)
 
 
-def run_mission(core, tmp_path, faults, trois=TROIS, seed=2, detector=None):
+def run_mission(core, tmp_path, faults, trois=TROIS, seed=2, detector=None, planner="c"):
     robot = core.robot
     d = open_bench_drivers(robot, core.task, trois, START, seed)
     world = d.extras["world"]
@@ -39,7 +39,7 @@ def run_mission(core, tmp_path, faults, trois=TROIS, seed=2, detector=None):
 
     log = RunLog(tmp_path / "run.mcap", robot, PinholeCamera.from_config(robot.cfg.camera), bench=True)
     inj = FaultInjector(faults, d, log_event=lambda lvl, msg: log.event(now(), lvl, msg))
-    ex = Executive(trois, START, END, d, core, make_planner("c", core), log=log, truth=world.truth, now_ns=now, hook=inj.on,
+    ex = Executive(trois, START, END, d, core, make_planner(planner, core), log=log, truth=world.truth, now_ns=now, hook=inj.on,
                    detector=detector)
     try:
         result = ex.run()
@@ -105,6 +105,23 @@ def test_fault_class_response(core, tmp_path, kind):
     assert any(f"fault injected: {kind}" in e for e in events)
     if aborted:
         assert any("mission aborted" in e for e in events)
+
+
+@pytest.mark.parametrize("planner", ["c", "field"])
+@pytest.mark.parametrize("dx, dy", [(0.06, 0.04), (0.4, -0.35)])
+def test_a_body_pushed_while_the_arm_looks_is_flamed_from_where_it_stands(core, tmp_path, planner, dx, dy):
+    """The flame pose was solved for the pose the body arrived at: pushed while the arm looked,
+    the arm aimed beside the weed and the interlock refused it (skipped `interlock:epmc`). Now it is
+    solved from where the body stands, or (out of reach from there) the body repositions."""
+    result, final, inj, log = run_mission(core, tmp_path, [Fault("slip_flame", 0, "observe", {"dx": dx, "dy": dy})], planner=planner)
+    assert inj.fired == [("slip_flame", 0, "observe")]
+    t = result.targets[0]
+    assert t.flamed and t.epmc_true, (t.reason, t.branch)
+    events = [m.data.message for m in iter_run(log, topics={"/log"})]
+    assert any("the body moved" in e and "since it arrived" in e for e in events), events
+    chk = check_ignition_invariant(log)
+    assert chk.complete and chk.ok, chk.violations
+    assert not final["flame_on"] and not final["armed"] and final["stowed"]
 
 
 THREE = [TROI(1.0, 0.3, 0.22, "A"), TROI(1.8, -0.3, 0.22, "B"), TROI(2.6, 0.3, 0.22, "C")]
