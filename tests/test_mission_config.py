@@ -360,3 +360,22 @@ def test_prescan_csv_header_and_numbers_are_checked(tmp_path, text, expect):
     m = GOOD.replace("  trois:\n    - {x: 1.0, y: 2.0, r: 0.2}\n", "  prescan: bad.csv\n")
     with pytest.raises(MissionError, match=expect):
         load_mission(_write(tmp_path, m))
+
+
+def test_ordering_a_second_time_reuses_the_tour_only_for_the_same_points(monkeypatch):
+    """A run orders its TROIs when the mission file is checked and again when it starts (5 000 TROIs:
+    ~2 s each): the second call reuses the tour; other points, start or end compute a new one."""
+    import mission.ordering as ordering
+
+    rng = np.random.default_rng(3)
+    trois = [TROI(float(x), float(y), 0.2, f"T{i}") for i, (x, y) in enumerate(rng.uniform(0, 5, (30, 2)))]
+    start, end = np.zeros(2), np.array([5.0, 5.0])
+    first = order_trois(trois, start, end)
+    calls = []
+    real = ordering._tour
+    monkeypatch.setattr(ordering, "_tour", lambda *a: calls.append(1) or real(*a))
+    assert order_trois([TROI(t.x, t.y, t.r, t.id) for t in trois], start, end) == first and not calls
+    moved = trois[:5] + [TROI(trois[5].x + 0.5, trois[5].y, 0.2, trois[5].id)] + trois[6:]
+    assert sorted(t.id for t in order_trois(moved, start, end)) == sorted(t.id for t in trois) and len(calls) == 1
+    assert order_trois(trois, start, np.array([0.0, 5.0])) == _order_rebuilt_per_move(trois, start, np.array([0.0, 5.0]))
+    assert len(calls) == 2
