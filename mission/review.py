@@ -1,4 +1,4 @@
-"""`capm-field review RUN.mcap [--rrd FILE] [--web] [--targets A-B]`: open a run log in Rerun.
+"""`capm-field review RUN.mcap [--rrd FILE] [--web] [--targets A-B] [--quiet]`: open a run log in Rerun.
 
 Rerun loads the MCAP natively (transforms, URDF, image, calibration, text log); this module adds
 what Rerun cannot draw from our custom protobuf messages, as Rerun archetypes in the `field`
@@ -106,37 +106,60 @@ def _body_poses(msg: Any) -> list[tuple[float, float, float]]:
     return out
 
 
-def load_run(path: Path) -> RunData:
+def _bar(progress: bool, desc: str, unit: str, total: int | None = None):
+    """A progress bar on stderr (a 1 000-target log takes ~20 s to review), or a silent one."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=f"capm-field review: {desc}", unit=unit, unit_scale=True, disable=not progress,
+                file=sys.stderr, leave=False, mininterval=0.5)
+
+
+def _counted(items, bar):
+    for item in items:
+        bar.update()
+        yield item
+
+
+def load_run(path: Path, progress: bool = False) -> RunData:
     data = RunData()
     checked: dict[Any, str | None] = {}  # decoded descriptor -> why it is not ours (None: it is)
-    for m in iter_run(path, report=data.report):
-        want = _SCHEMAS.get(m.topic)
-        why = want and foreign_problem(m.schema, m.data, want, checked)
-        if why:
-            data.report.skip(m.topic, why, m.record)
-            continue
-        if m.log_time > _TIME_MAX_NS:  # np.datetime64 / Rerun timelines are int64 ns
-            data.report.skip(m.topic, f"log_time {m.log_time} past 2**63 - 1 ns, beyond a Rerun timeline", m.record)
-            continue
-        if m.topic == TOPICS["tf"]:
-            try:
-                poses = _body_poses(m.data)
-            except (AttributeError, TypeError) as e:
-                data.report.skip(m.topic, f"{want} with other fields: {type(e).__name__}: {e}", m.record)
-                continue
-            data.body_path.extend(poses)
-            data.body_times.extend([m.log_time] * len(poses))
-        elif m.topic in _CUSTOM:
-            data.messages[m.topic].append((m.log_time, m.data))
-        times, records = data.index.setdefault(m.topic, (array("q"), array("q")))
-        times.append(m.log_time)
-        records.append(m.record)
-        data.first_ns = m.log_time if data.first_ns is None else min(data.first_ns, m.log_time)
-        data.last_ns = m.log_time if data.last_ns is None else max(data.last_ns, m.log_time)
+    with _bar(progress, "reading the run log", "msg") as bar:
+        for m in iter_run(path, report=data.report):
+            if bar.total is None and data.report.expected_messages:
+                bar.total = data.report.expected_messages
+            bar.update()
+            _take(data, m, checked)
     if data.report.messages == 0:
         why = f": {data.report.error}" if data.report.error else ""
         raise UserError(f"no readable messages in {path}{why}")
     return data
+
+
+def _take(data: RunData, m: Any, checked: dict[Any, str | None]) -> None:
+    """One message of the run log into `data` (or skipped, with the reason, into its report)."""
+    want = _SCHEMAS.get(m.topic)
+    why = want and foreign_problem(m.schema, m.data, want, checked)
+    if why:
+        data.report.skip(m.topic, why, m.record)
+        return
+    if m.log_time > _TIME_MAX_NS:  # np.datetime64 / Rerun timelines are int64 ns
+        data.report.skip(m.topic, f"log_time {m.log_time} past 2**63 - 1 ns, beyond a Rerun timeline", m.record)
+        return
+    if m.topic == TOPICS["tf"]:
+        try:
+            poses = _body_poses(m.data)
+        except (AttributeError, TypeError) as e:
+            data.report.skip(m.topic, f"{want} with other fields: {type(e).__name__}: {e}", m.record)
+            return
+        data.body_path.extend(poses)
+        data.body_times.extend([m.log_time] * len(poses))
+    elif m.topic in _CUSTOM:
+        data.messages[m.topic].append((m.log_time, m.data))
+    times, records = data.index.setdefault(m.topic, (array("q"), array("q")))
+    times.append(m.log_time)
+    records.append(m.record)
+    data.first_ns = m.log_time if data.first_ns is None else min(data.first_ns, m.log_time)
+    data.last_ns = m.log_time if data.last_ns is None else max(data.last_ns, m.log_time)
 
 
 # ---- geometry ----------------------------------------------------------------------------------
@@ -147,12 +170,15 @@ def circle(cx: float, cy: float, r: float, z: float = 0.01, n: int = 72) -> np.n
 
 # ---- logging -----------------------------------------------------------------------------------
 class _Logger:
-    def __init__(self, rec: rr.RecordingStream, duration: bool) -> None:
+    def __init__(self, rec: rr.RecordingStream, duration: bool, tick: Any = None) -> None:
         self.rec = rec
         self.duration = duration
         self._framed: set[str] = set()
+        self._tick = tick  # called at every time set (progress)
 
     def at(self, t_ns: int) -> None:
+        if self._tick is not None:
+            self._tick()
         if self.duration:
             self.rec.set_time(TIMELINE, duration=np.timedelta64(int(t_ns), "ns"))
         else:
@@ -169,8 +195,12 @@ class _Logger:
             self._framed.discard(path)  # a Clear hides what came before it, the frame too: the next row gives it again
 
 
-def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool) -> None:
-    lg = _Logger(rec, duration)
+def log_extras(rec: rr.RecordingStream, data: RunData, duration: bool, progress: bool = False) -> None:
+    with _bar(progress, "drawing plans, regions, detections, plots", "msg", sum(len(v) for v in data.messages.values())) as bar:
+        _log_extras(_Logger(rec, duration, bar.update), data)
+
+
+def _log_extras(lg: _Logger, data: RunData) -> None:
     # each topic in time order (stable): an entity's frame rides in its first row, which must then
     # be its earliest (a foreign or hand-made log's messages may be out of order)
     msgs = defaultdict(list, {k: sorted(v, key=lambda tm: tm[0]) for k, v in data.messages.items()})
@@ -313,7 +343,7 @@ def _urdf_package_path() -> str | None:
         return None
 
 
-def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
+def write_rrd(mcap: Path, out: Path, data: RunData | None = None, progress: bool = False) -> RunData:
     """Convert the run to an .rrd: native MCAP import + our archetypes + blueprint.
 
     Written to a temporary file beside `out` and renamed over it only once complete, so a
@@ -346,17 +376,20 @@ def write_rrd(mcap: Path, out: Path, data: RunData | None = None) -> RunData:
                 # A part of a long run (`--targets`) is such a copy of the part's messages only.
                 source = Path(tmp) / "salvaged.mcap"
                 keep = data.part.keep if data.part else None
-                data.imported = salvage(mcap, source, drop=rep.skipped_records, keep=keep).messages
+                what = "copying the part" if data.part else "copying what was read"
+                with _bar(progress, what, "msg", rep.records or None) as bar:
+                    data.imported = salvage(mcap, source, drop=rep.skipped_records, keep=keep, tick=bar.update).messages
             else:
                 data.imported = rep.messages
             try:
                 reader = McapReader(str(source), recover=True, timeline_type="duration_ns" if duration else "timestamp_ns")
-                rr.send_chunks(reader.stream(), recording=rec)
+                with _bar(progress, "Rerun's import", "chunk") as bar:
+                    rr.send_chunks(_counted(reader.stream(), bar), recording=rec)
             except Exception as e:  # noqa: BLE001 - the Rust reader's errors are plain exceptions
                 raise UserError(f"Rerun cannot read {mcap}: {e}") from e
         which = f" (targets {data.part.first}–{data.part.last})" if data.part else ""
         rec.send_recording_name(mcap.parent.name + "/" + mcap.name + which)
-        log_extras(rec, data, duration)
+        log_extras(rec, data, duration, progress)
         rec.flush()
         rec.disconnect()
         _check_rrd(part, out, len(data.part.ids) if data.part else len(target_order(data)[0]))
@@ -455,6 +488,7 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"review only the targets at positions A..B (0-based, in the order the run began them); "
                          f"a run of more than {PART_TARGETS} is reviewed {PART_TARGETS} at a time, the first part by default")
     ap.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of the native viewer")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars (shown on a terminal only)")
     ap.add_argument("--web-port", type=_port, default=9090, help="HTTP port of the web viewer (default 9090)")
     ap.add_argument("--grpc-port", type=_port, default=9876, help="gRPC port the web viewer reads from (default 9876)")
     args = ap.parse_args(argv)
@@ -471,13 +505,14 @@ def main(argv: list[str] | None = None) -> int:
     native = not args.rrd and not args.web
     if native and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise UserError("no display for the native viewer (DISPLAY/WAYLAND_DISPLAY unset): use --rrd FILE or --web")
-    data = load_run(mcap)
+    progress = not args.quiet and sys.stderr.isatty()
+    data = load_run(mcap, progress)
     rep = data.report
     for note in rep.notes(mcap):
         print(f"capm-field review: note: {terminal_safe(note)}", file=sys.stderr)
     data = _part_of(data, args.targets)
     if args.rrd and not args.web:
-        write_rrd(mcap, args.rrd, data)
+        write_rrd(mcap, args.rrd, data, progress)
         skipped = f"; {rep.undecodable} skipped, see the note above" if rep.undecodable else ""
         part = f"; {data.part.describe()}" if data.part else ""
         print(terminal_safe(f"wrote {args.rrd} ({data.imported} messages{skipped}{part})"))
@@ -485,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory(prefix="capm-review-") as tmp:
         out = args.rrd or Path(tmp) / "run.rrd"
-        write_rrd(mcap, out, data)
+        write_rrd(mcap, out, data, progress)
         if args.web:
             url = f"rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{args.grpc_port}%2Fproxy"
             print(f"web viewer (loopback only): http://127.0.0.1:{args.web_port}/?url={url}  (Ctrl-C to stop)", flush=True)

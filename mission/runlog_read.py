@@ -409,7 +409,8 @@ def iter_run(path: str | Path, topics: set[str] | None = None, report: ReadRepor
         yield RunMessage(channel.topic, msg.log_time, schema.name if schema else "", data, report.records - 1)
 
 
-def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = (), keep: Collection[int] | None = None) -> ReadReport:
+def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = (), keep: Collection[int] | None = None,
+            tick: Callable[[], object] | None = None) -> ReadReport:
     """Copy every readable record of a (crash-truncated) log into a finalised MCAP at `dst`.
 
     Bytes are copied, not re-encoded. Tools that insist on a summary and complete message
@@ -417,7 +418,7 @@ def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = (), keep: 
     `drop`: Message records left out, by place (`RunMessage.record`, `ReadReport.skipped_records`):
     payloads our reader could not decode, which stop Rerun's importer from finishing a recording.
     `keep`: if given, only these Message records are copied (a part of a long run, `review --targets`);
-    the others are neither copied nor counted.
+    the others are neither copied nor counted. `tick()` is called for every Message record read (progress).
     """
     p = check_mcap(src)
     report = ReadReport()
@@ -429,6 +430,8 @@ def salvage(src: str | Path, dst: str | Path, drop: Collection[int] = (), keep: 
         summary = _read_summary(p)
         schemas, channels = _tables(summary)
         for rec in _iter_records(p, report, summary):
+            if tick is not None and isinstance(rec, Message):
+                tick()
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
             elif isinstance(rec, Channel):

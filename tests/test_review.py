@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 import shutil
 import subprocess
@@ -237,3 +238,20 @@ def test_a_bad_part_is_one_line(tmp_path, robot, capsys, spec, why):
     err = capsys.readouterr().err
     assert why in err and err.count("\n") == 1, err
     assert not (tmp_path / "x.rrd").exists()
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_a_review_shows_its_progress_on_a_terminal(run_mcap, tmp_path, monkeypatch, quiet):
+    """A 1 000-target log takes ~20 s to review (a 1 500-target part ~60 s): each phase shows a
+    progress bar on a terminal's stderr, none with --quiet (nor when stderr is not a terminal)."""
+    err = _Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    assert review_main([str(run_mcap), "--rrd", str(tmp_path / "out.rrd")] + (["--quiet"] if quiet else [])) == 0
+    shown = err.getvalue()
+    for phase in ("reading the run log", "Rerun's import", "drawing plans"):
+        assert (phase in shown) != quiet, shown

@@ -101,7 +101,7 @@ def test_a_failed_review_keeps_the_previous_rrd_and_leaves_no_partial_file(tmp_p
     ])
     with monkeypatch.context() as m:  # (a message our reader skips is no longer handed to Rerun)
         real = review.salvage
-        m.setattr(review, "salvage", lambda src, dst, drop=(), keep=None: real(src, dst))
+        m.setattr(review, "salvage", lambda src, dst, drop=(), keep=None, tick=None: real(src, dst))
         rc, err = _review(bad, out, capsys)
     assert rc == 2 and "Rerun cannot read" in err
     assert out.read_bytes() == b"an earlier, good recording"
@@ -384,7 +384,7 @@ def test_payloads_rerun_cannot_decode_are_left_out_and_an_unfinished_recording_i
     out.write_bytes(b"an earlier recording")
     with monkeypatch.context() as m:  # hand the importer everything again: Rerun cannot finish
         real = review.salvage
-        m.setattr(review, "salvage", lambda src, dst, drop=(), keep=None: real(src, dst))
+        m.setattr(review, "salvage", lambda src, dst, drop=(), keep=None, tick=None: real(src, dst))
         rc, err = _review(bad, out, capsys)
     assert rc == 2 and "Rerun did not finish the recording (no footer" in err and "nothing written" in err, err
     assert out.read_bytes() == b"an earlier recording"
