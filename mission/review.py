@@ -38,10 +38,10 @@ from capm_field.cli_args import count
 from capm_field.cli_args import path as cli_path
 from capm_field.errors import UserError, check_output, same_file, terminal_safe
 
+from .review_parts import PART_TARGETS, Part, parse_targets, target_order
+from .review_parts import select as select_part
 from .runlog import PROTO_TOPICS, SCHEMAS, TOPICS
 from .runlog_read import ReadReport, check_mcap, iter_run, salvage
-from .review_parts import PART_TARGETS, parse_targets, target_order
-from .review_parts import select as select_part
 from .runlog_schema import foreign_problem
 
 TIMELINE = "message_log_time"  # the timeline Rerun's MCAP importer writes log_time to
@@ -90,7 +90,7 @@ class RunData:
     imported: int | None = None  # messages handed to Rerun's MCAP importer (set by `write_rrd`)
     # every message read, by topic: log times and record places (`RunMessage.record`), to pick a part
     index: dict[str, tuple[array, array]] = field(default_factory=dict)
-    part: "Part | None" = None  # set when only some of the run's targets are reviewed
+    part: Part | None = None  # set when only some of the run's targets are reviewed
 
 
 def _body_poses(msg: Any) -> list[tuple[float, float, float]]:
