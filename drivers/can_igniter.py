@@ -181,11 +181,18 @@ class CanIgniter(Igniter):
                     flame, fault, stamp = bool(self._s("FlameOn")), self.fault, self._status_stamp
                     armed = bool(self._s("Armed"))
                 if time.monotonic_ns() - stamp > self.cfg.status_timeout * 1e9:
-                    # blind: cannot confirm the flame, so stop now; then tell link loss from lost status
+                    # blind: cannot confirm the flame, so stop now; then tell a lost link (LinkLost)
+                    # from lost status frames and from a stall of this host, after which the board's
+                    # status says what it did meanwhile (it trips on the missing keep-alives: a
+                    # `keepalive_timeout`, which the executive re-arms once for)
                     self.extinguish()
-                    self.link.wait_lost(self.cfg.heartbeat.timeout)
+                    fresh = self._status_after(stamp, self.cfg.heartbeat.timeout)
                     self._check()
-                    return result(False, "status_stale")
+                    with self._cv:
+                        armed, fault = bool(self._s("Armed")), self.fault
+                    if not fresh or (armed and not fault):
+                        return result(False, "status_stale")
+                    return result(False, fault or self._off_reason(armed))
                 if flame and flame_t0 is None and stamp / 1e9 >= t0:
                     flame_t0 = now
                 if flame_t0 is not None:
@@ -220,6 +227,18 @@ class CanIgniter(Igniter):
         finally:
             self.extinguish()
             self._confirm_off(0.2)
+
+    def _status_after(self, stamp_ns: int, timeout: float) -> bool:
+        """Wait (≤ timeout, never raises) for a status newer than `stamp_ns` or the link declared
+        lost; True if a newer status came."""
+        end = time.monotonic() + timeout
+        with self._cv:
+            while self._status_stamp <= stamp_ns and self.link.lost_reason is None and not self._closed:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cv.wait(min(left, 0.02))
+            return self._status_stamp > stamp_ns
 
     def _off_reason(self, armed: bool) -> str:
         """Why the flame / trial ended without a fault: the trip event if the board disarmed."""

@@ -35,6 +35,7 @@ from drivers.body_protocol import (
     link_security,
     pose_map,
 )
+from drivers.host_stall import host_clock
 from drivers.interfaces import (
     Body,
     BodyState,
@@ -111,6 +112,7 @@ class ZenohBody(Body):
         self.keys = Keys(cfg.robot_id)
         self.client_id: str = cfg.client_id  # type: ignore[assignment]
         self._stale_ns = int((cfg.state_stale_s if cfg.state_stale_s is not None else cfg.link.lease_ms / 2000) * 1e9)
+        self._host = host_clock()
         self._cond = threading.Condition()
         self._state: dict | None = None
         self._state_rx_ns = 0
@@ -455,7 +457,9 @@ class ZenohBody(Body):
         if self._lost is None:
             if self._closed:
                 return "driver closed"
-            if self._state is not None and time.monotonic_ns() - self._state_rx_ns > self._stale_ns:
+            # silence counted from the end of a stall of this process, if later (drivers/host_stall.py):
+            # a host that did not run for 0.6 s latched the link lost, E-stopping a healthy robot
+            if self._state is not None and time.monotonic_ns() - self._host.silent_since(self._state_rx_ns) > self._stale_ns:
                 self._lost = f"state stream stalled for {(time.monotonic_ns() - self._state_rx_ns) / 1e6:.0f} ms"
         return self._lost
 

@@ -350,10 +350,19 @@ class Executive:
                 break
         return st.pose
 
+    def _body_holds(self) -> None:
+        """Before an arm move out to a view or flame pose: the body's link and E-stop. The arm was
+        reset and reached out to the flame pose after the body link had latched lost and while the
+        robot side E-stopped itself (body and arm never move together, a.2; a timing audit)."""
+        b = self.d.body.state()
+        self._raise_if_fatal([f"body {b.fault}"] if b.fault else [], b.estop)
+
     def _arm_to(self, sol: ArmSolution) -> None:
+        self._body_holds()
         r = self.d.arm.move_joints(sol.q, self.timeouts["arm"], on_state=self._tf_arm)
         self._tf()
         if not r.ok and self.d.arm.state().fault:
+            self._body_holds()
             # A latched arm fault: reset once and retry the move (then give up on the target).
             self._event("warning", f"arm fault {self.d.arm.state().fault}: reset and retry once")
             self.d.arm.reset(self.timeouts["arm"])
@@ -502,12 +511,14 @@ class Executive:
 
     @staticmethod
     def _raise_if_fatal(reasons: list[str], estop: bool) -> None:
-        """E-stop or a lost link anywhere ends the mission (igniter already off)."""
-        if estop:
-            raise EStopActive("E-stop engaged")
+        """E-stop or a lost link anywhere ends the mission (igniter already off). A lost link is
+        named first: the robot side E-stops itself when its holder's check-ins stop, so an E-stop
+        seen with a lost link is most likely that one, not a button pressed (a timing audit)."""
         lost = [r for r in reasons if "link_lost" in r or "state_unavailable" in r]
         if lost:
-            raise LinkLost(f"link lost ({', '.join(lost)})")
+            raise LinkLost(f"link lost ({', '.join(lost)})" + ("; the body is E-stopped" if estop else ""))
+        if estop:
+            raise EStopActive("E-stop engaged")
 
     def _hold(self, il: IgnitionInterlock):
         """ignite(ξ) with keep-alives permitted only while the interlock holds; flame off after."""
@@ -928,6 +939,8 @@ class Executive:
 
     def _check_startup(self) -> None:
         b = self.d.body.state()
+        if b.fault and b.fault.startswith("link_lost"):  # (before the E-stop it may have caused)
+            raise LinkLost(f"body {b.fault} at mission start")
         if b.estop:
             raise EStopActive("E-stop engaged at mission start")
         self._safe()

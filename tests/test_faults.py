@@ -389,3 +389,25 @@ def test_a_briefly_stale_arm_state_is_waited_out_not_reset_into_an_abort(core, t
         d.close()
     assert stall["until"] and not r.aborted, r.aborted
     assert [t.flamed for t in r.targets] == [True, True] and not resets, ([t.reason for t in r.targets], resets)
+
+
+@pytest.mark.parametrize("phase", ["observe", "flame"])
+def test_the_arm_does_not_reach_out_once_the_body_link_is_lost(core, tmp_path, phase):
+    """A timing audit: the body link latched lost (and the robot side E-stopping itself), the
+    executive still reset the arm and moved it out to the flame pose before the interlock stopped
+    the mission. Now the body's link and E-stop are checked before every move out to a view or
+    flame pose: no x_e,k2 / x_e,k3 is reached after the loss."""
+    # (at_s 0: in the flame phase, as a trial begins, before its flame pose is solved)
+    result, final, inj, log = run_mission(core, tmp_path, [Fault("body_link_loss", 0, phase, {"at_s": 0.0})])
+    assert inj.fired == [("body_link_loss", 0, phase)] and result.aborted and "LinkLost" in result.aborted
+    reached = [m.data.label for m in iter_run(log, topics={"/key_state"})]
+    later = {"observe": ("x_e,k2", "x_e,k3"), "flame": ("x_e,k3",)}[phase]
+    assert not any(k in reached for k in later), reached
+    assert not final["flame_on"] and not final["armed"]
+
+
+def test_a_lost_link_is_named_before_the_e_stop_it_may_have_caused():
+    from drivers.interfaces import LinkLost
+
+    with pytest.raises(LinkLost, match="E-stopped"):
+        Executive._raise_if_fatal(["body link_lost: state stream stalled for 600 ms"], True)

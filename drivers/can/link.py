@@ -5,7 +5,8 @@ config, runs exactly one `Notifier` on it (decoded, validated frames go to
 `on_frame(name, signals, stamp)` in the Notifier's thread, `stamp` being the frame's bus
 receive timestamp in s; frames the receiver rejected go to `on_reject(msg)` if given),
 produces the host heartbeat and consumes the peer's: no valid peer heartbeat for `timeout` s
-(or a peer not OPERATIONAL, or a send error such as bus-off) makes the link lost, which the
+(counted from the end of a stall of this process if later: `drivers/host_stall.py`; or a peer
+not OPERATIONAL, or a send error such as bus-off) makes the link lost, which the
 adapters turn into `LinkLost`. `close()` stops the heartbeat thread,
 then the Notifier, then shuts the bus down (that order: see DEPENDENCY_NOTES, python-can).
 """
@@ -18,6 +19,7 @@ from typing import Callable
 
 import can
 
+from drivers.host_stall import host_clock
 from drivers.interfaces import DriverTimeout, LinkLost
 
 from .codec import HEARTBEAT_BASE, NMT_OPERATIONAL, RESYNC_HOLD_S, Encoder, Receiver
@@ -66,6 +68,7 @@ class CanLink(can.Listener):
         self.lost_reason: str | None = "no heartbeat yet"
         self.lost_detected_ns: int | None = None
         self.peer_seen = threading.Event()
+        self._host = host_clock()
         self._closed = False
         self.bus = open_bus(bus_cfg)
         self.notifier = can.Notifier(self.bus, [self], timeout=0.05)  # bounds stop() time
@@ -115,7 +118,8 @@ class CanLink(can.Listener):
                     next_hb = now + period
             with self._lock:
                 last = self.last_peer_hb_ns
-                deadline = (last / 1e9 + self.hb_cfg.timeout) if last is not None else None
+                # silence counted from the end of a host stall, if later (drivers/host_stall.py)
+                deadline = (self._host.silent_since(last) / 1e9 + self.hb_cfg.timeout) if last is not None else None
                 if last is not None and self.lost_reason is None and time.monotonic() >= deadline:
                     self._mark_lost_locked(f"no heartbeat from {self._peer_hb} for {self.hb_cfg.timeout:.3f} s")
             wake_at = next_hb if deadline is None or self.lost_reason is not None else min(next_hb, deadline)
