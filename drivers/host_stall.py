@@ -18,6 +18,9 @@ import time
 
 TICK_S = 0.01  # ticker period
 STALL_S = 0.1  # a gap in the ticks longer than this is a stall of the process (or its CPU share)
+# host stalls postpone a peer's silence by at most this: a host starved again and again (each tick
+# late) must still find a peer that went quiet for good
+MAX_DEFER_S = 2.0
 
 
 class HostClock:
@@ -42,11 +45,10 @@ class HostClock:
     def silent_since(self, last_heard_ns: int) -> int:
         """From when a peer last heard at `last_heard_ns` counts as silent: that time, or the end of
         a later host stall, or now while the ticker has not yet run since one (the caller woke
-        first)."""
+        first); never later than MAX_DEFER_S after `last_heard_ns`."""
         now = time.monotonic_ns()
-        if now - self.last_tick_ns > self.stall_ns:
-            return now
-        return max(last_heard_ns, self.resumed_ns)
+        resumed = now if now - self.last_tick_ns > self.stall_ns else self.resumed_ns
+        return max(last_heard_ns, min(resumed, last_heard_ns + int(MAX_DEFER_S * 1e9)))
 
 
 _CLOCK: HostClock | None = None

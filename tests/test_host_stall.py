@@ -40,6 +40,8 @@ def test_the_clock_tells_a_stall_from_a_quiet_peer():
     assert clock.silent_since(heard) >= now  # woke before the ticker: counts from now
     time.sleep(0.05)
     assert clock.stalls >= 1 and clock.silent_since(heard) >= now - 30_000_000  # from the end of the stall
+    long_ago = time.monotonic_ns() - 5 * 10**9  # stalls postpone a silence by 2 s at most
+    assert clock.silent_since(long_ago) == long_ago + 2 * 10**9
 
 
 def test_a_host_stall_longer_than_the_heartbeat_timeout_does_not_lose_the_can_link():
