@@ -42,6 +42,9 @@ from .interfaces import DriverTimeout, Igniter, IgniterFault, IgniterState, Link
 TRIP_EVENTS = ("keepalive_timeout", "bad_frame", "host_lost")
 # the board shuts the valve and disarms no later than this after the last valid IGNITE (can.md)
 KEEPALIVE_BOUND_S = 0.1
+# a status this long after the previous one is the board's current one, not one of a backlog
+# drained after a host stall (the board sends one every 20 ms; a backlog arrives back to back)
+DRAINED_S = 0.008
 
 
 class CanIgniter(Igniter):
@@ -229,15 +232,19 @@ class CanIgniter(Igniter):
             self._confirm_off(0.2)
 
     def _status_after(self, stamp_ns: int, timeout: float) -> bool:
-        """Wait (≤ timeout, never raises) for a status newer than `stamp_ns` or the link declared
-        lost; True if a newer status came."""
+        """Wait (≤ timeout, never raises) for the board's current status: one newer than `stamp_ns`
+        with none after it for DRAINED_S (after a stall of this host the statuses the board sent
+        meanwhile arrive back to back, the oldest first: the first of them still shows the board
+        armed, from before its trip), or for the link declared lost. True if a newer status came."""
         end = time.monotonic() + timeout
         with self._cv:
-            while self._status_stamp <= stamp_ns and self.link.lost_reason is None and not self._closed:
+            while self.link.lost_reason is None and not self._closed:
+                if self._status_stamp > stamp_ns and time.monotonic_ns() - self._status_stamp >= DRAINED_S * 1e9:
+                    return True
                 left = end - time.monotonic()
                 if left <= 0:
-                    return False
-                self._cv.wait(min(left, 0.02))
+                    break
+                self._cv.wait(min(left, DRAINED_S / 2))
             return self._status_stamp > stamp_ns
 
     def _off_reason(self, armed: bool) -> str:

@@ -496,6 +496,7 @@ class Executive:
                 # the board tripped (a host stall > 80 ms, or a corrupted command frame) and
                 # disarmed itself: arm again for one more trial while the interlock holds
                 self._event("warning", f"{tid}: igniter tripped ({reason}); re-arming for one more trial", target=tid)
+                self._reset_arm_for_retry(tid)
                 continue
             if attempt == 0 and reason in ("ignition_failed", "flame_out"):
                 self._event("warning", f"{tid}: resetting the igniter fault ({reason}) for one more trial", target=tid)
@@ -505,9 +506,19 @@ class Executive:
                 body = b.pose  # pushed or moved: re-solve the flame pose from where the body is
                 if not self.core.regions.in_R_m(body, mpoi):
                     break
+                self._reset_arm_for_retry(tid)
                 continue
             break
         raise _Skip(f"flame_failed:{reason}")
+
+    def _reset_arm_for_retry(self, tid: str) -> None:
+        """Before a trial's retry: an arm fault the first trial ended with (the gateway latches
+        `host_lost` when this host stalls for its heartbeat timeout, as the board trips) is reset
+        once; the retry's interlock refused it and skipped the target (a timing audit)."""
+        fault = self._arm_fault()
+        if fault:
+            self._event("warning", f"{tid}: arm fault {fault} after the trial: reset for one more trial", target=tid)
+            self.d.arm.reset(self.timeouts["arm"])
 
     @staticmethod
     def _raise_if_fatal(reasons: list[str], estop: bool) -> None:
